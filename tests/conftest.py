@@ -1,0 +1,40 @@
+"""Shared helpers: scene files in a temporary folder, the CLI runner, the repo's paths."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+REPO = Path(__file__).resolve().parent.parent
+SCENARIOS = REPO / "scenarios"
+
+
+@pytest.fixture
+def write_scene(tmp_path):
+    """write_scene(text, name='scene.yaml') -> Path of a dedented scene file in tmp_path."""
+
+    def write(text: str, name: str = "scene.yaml") -> Path:
+        path = tmp_path / name
+        path.write_text(textwrap.dedent(text).lstrip("\n"), encoding="utf-8")
+        return path
+
+    return write
+
+
+@pytest.fixture
+def runner():
+    return CliRunner()
+
+
+@pytest.fixture
+def invoke(runner):
+    """invoke(*args) -> click Result of `vrsim ARGS` run in-process."""
+    from vrsim_cli.cli import cli
+
+    def call(*args):
+        return runner.invoke(cli, [str(a) for a in args], catch_exceptions=False)
+
+    return call
