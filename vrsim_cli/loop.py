@@ -1,0 +1,137 @@
+"""Layer 5: the simulation loop of slide 5.0, composed from the stages.
+
+One frame (at `frame_rate`):
+  1. read sensors                       (mouse, head tracker: the navigation issue)
+  2. simulate, `steps_per_frame` physics steps of `dt`:
+     2.1 dynamic motion                 (`dynamics.step`)
+     2.2 sensor-driven motion           (observer navigation: the navigation issue)
+     2.3 collision response             (the collision issues)
+  3. update the scene graph and render  (keyframes, frames: their issues)
+Trajectory samples are taken at the output rate, on the physics-step grid; the final state
+is always written. Each stage is timed into `RunResult.profile`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from vrsim_cli import dynamics
+from vrsim_cli.errors import SimulationError
+from vrsim_cli.model import Model
+from vrsim_cli.state import State
+
+# Beyond these a run has blown up numerically, not simulated anything physical.
+MAX_POSITION_M = 1e12  # about 7 times the Earth-Sun distance
+MAX_SPEED_M_S = 299_792_458.0  # the speed of light
+
+
+@dataclass
+class RunResult:
+    state: State  # the last good state
+    frames: int = 0
+    samples: int = 0
+    wall_s: float = 0.0
+    interrupted: bool = False
+    missed_deadlines: int = 0  # --realtime: frames finished after their wall-clock deadline
+    worst_late_s: float = 0.0
+    profile: dict = field(default_factory=dict)  # stage -> seconds
+
+
+def check_state(model: Model, state: State) -> None:
+    """Raise SimulationError naming the first body whose state is not finite or runs away."""
+    if model.n_body == 0:
+        return
+    pos, vel = state.body_pos, state.body_vel
+    if np.abs(pos).max() < MAX_POSITION_M and np.abs(vel).max() < MAX_SPEED_M_S:
+        return  # NaN fails both comparisons, so this one test also catches NaN
+    finite = np.isfinite(pos).all(axis=1) & np.isfinite(vel).all(axis=1)
+    if not finite.all():
+        body = int(np.argmin(finite))
+        raise SimulationError("position or velocity is not finite (NaN or Inf): the "
+                              "integration blew up; try a smaller dt or another integrator",
+                              body=model.body_name[body], t=state.t)
+    far = np.abs(pos).max(axis=1) >= MAX_POSITION_M
+    body = int(np.argmax(far)) if far.any() else int(np.argmax(np.abs(vel).max(axis=1)))
+    what = (f"moved more than {MAX_POSITION_M:.0e} m from the origin" if far.any() else
+            f"moves faster than light ({np.abs(vel[body]).max():.3g} m/s along an axis)")
+    raise SimulationError(f"{what}: the integration blew up; try a smaller dt or another "
+                          f"integrator", body=model.body_name[body], t=state.t)
+
+
+def run(model: Model, state: State, writer=None, *, realtime: bool = False,
+        should_stop: Callable[[], bool] | None = None,
+        on_frame: Callable[[State], None] | None = None) -> RunResult:
+    """Run `model` from `state` to the end (or until `should_stop()` is true at a frame).
+
+    `writer` receives samples; it is not closed here. On a blow-up the last good state is
+    written (if it was not yet) before SimulationError propagates.
+    """
+    clock = time.perf_counter
+    profile = {"dynamics": 0.0, "checks": 0.0, "output": 0.0}
+    result = RunResult(state=state, profile=profile)
+    every = model.output.every_steps
+    last_written = -1
+
+    def sample(s: State) -> None:
+        nonlocal last_written
+        if writer is not None and last_written != s.step:
+            t0 = clock()
+            writer.write(s)
+            profile["output"] += clock() - t0
+            result.samples += 1
+            last_written = s.step
+
+    sample(state)
+    start = clock()
+    # Overflow and NaN are detected by check_state, which names the body and time;
+    # numpy's own warnings would only add noise.
+    errstate = np.errstate(all="ignore")
+    errstate.__enter__()
+    try:
+        for frame in range(state.step // model.steps_per_frame, model.n_frames):
+            if should_stop is not None and should_stop():
+                result.interrupted = True
+                break
+            # 1. sensors: nothing to read until observer navigation exists.
+            # 2. simulate
+            steps = min(model.steps_per_frame, model.n_steps - state.step)
+            for _ in range(steps):
+                t0 = clock()
+                new = dynamics.step(model, state)  # 2.1
+                t1 = clock()
+                check_state(model, new)
+                profile["dynamics"] += t1 - t0
+                profile["checks"] += clock() - t1
+                state = new
+                result.state = state
+                if state.step % every == 0:
+                    sample(state)
+            result.frames += 1
+            # 3. scene graph and render: nothing to draw until those stages exist.
+            if realtime:
+                _pace(model, start, state, result)
+            if on_frame is not None:
+                on_frame(state)
+    except SimulationError:
+        sample(result.state)  # keep the output up to the last good state
+        raise
+    finally:
+        errstate.__exit__(None, None, None)
+        result.wall_s = clock() - start
+    sample(state)
+    return result
+
+
+def _pace(model: Model, start: float, state: State, result: RunResult) -> None:
+    """Sleep until this frame's wall-clock deadline; count the frames that missed it."""
+    deadline = start + state.t
+    late = time.perf_counter() - deadline
+    if late > 0.0:
+        result.missed_deadlines += 1
+        result.worst_late_s = max(result.worst_late_s, late)
+    else:
+        time.sleep(-late)

@@ -1,0 +1,337 @@
+"""Compile a validated scene into a frozen model: constants of the run as numpy arrays.
+
+Layer 2. Like MuJoCo's mjModel, the model never changes during a run; everything that
+moves lives in `state.State`. Arrays are structure-of-arrays over bodies, named
+`body_<property>`, with shape and unit in the field list below, and are read-only.
+
+Time grid: `dt` in the scene is the largest physics step the user accepts. A frame must
+hold a whole number of steps, so the step used is `1 / (frame_rate * k)` with the smallest
+whole `k` that makes it <= dt (the requested value itself when it already fits to 1e-12).
+Simulated time is always `step_index * dt`, never a running sum, so it does not drift.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from vrsim_cli.errors import InputError, Problem
+from vrsim_cli.scene import Scene
+from vrsim_cli.spatial import (IDENTITY_QUAT, quat_from_axis_angle, quat_from_euler_deg,
+                               quat_normalize, quat_rotating)
+
+BODY_DYNAMIC, BODY_KINEMATIC, BODY_STATIC = 0, 1, 2
+BODY_TYPES = {"dynamic": BODY_DYNAMIC, "kinematic": BODY_KINEMATIC, "static": BODY_STATIC}
+INTEGRATORS = ("euler", "symplectic-euler", "rk4")
+OUTPUT_FORMATS = ("mcap", "csv", "tum")
+
+DEFAULT_FRAME_RATE = 60.0  # Hz
+DEFAULT_DT = 0.001  # s
+DEFAULT_GRAVITY = (0.0, -9.81, 0.0)  # m/s^2, y up as on the slides
+DEFAULT_PARTICLE_RADIUS = 0.02  # m, drawn size of an emitted particle
+MAX_STEPS = 2_000_000_000  # a run longer than this is a typo, not a plan
+
+# Ten distinguishable colours for bodies without `color` (RGBA).
+PALETTE = np.array([
+    [0.12, 0.47, 0.71, 1], [1.00, 0.50, 0.05, 1], [0.17, 0.63, 0.17, 1],
+    [0.84, 0.15, 0.16, 1], [0.58, 0.40, 0.74, 1], [0.55, 0.34, 0.29, 1],
+    [0.89, 0.47, 0.76, 1], [0.50, 0.50, 0.50, 1], [0.74, 0.74, 0.13, 1],
+    [0.09, 0.75, 0.81, 1]])
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    """Where and how the trajectory is written. `path` None: the run writes nothing."""
+
+    path: Path | None
+    format: str | None
+    every_steps: int  # one sample every this many physics steps
+
+
+@dataclass(frozen=True)
+class Model:
+    """Constants of one run. Fields with a shape are read-only numpy arrays.
+
+    n_body bodies, n_force forces. Positions in m, velocities in m/s, masses in kg,
+    forces in N, times in s, quaternions [w, x, y, z].
+    """
+
+    name: str
+    dimension: int  # 2 or 3; 2D bodies live in the z = 0 plane and rotate about z
+    dt: float  # s, physics step actually used
+    dt_requested: float  # s, the scene's (or --dt's) upper bound
+    frame_rate: float  # Hz
+    steps_per_frame: int
+    n_steps: int  # the run ends at t = n_steps * dt
+    integrator: str
+    gravity: np.ndarray  # (3,) m/s^2
+    body_name: tuple  # (n_body,) str
+    body_type: np.ndarray  # (n_body,) int8: BODY_DYNAMIC | BODY_KINEMATIC | BODY_STATIC
+    body_mass: np.ndarray  # (n_body,) kg; inf for kinematic and static bodies
+    body_inv_mass: np.ndarray  # (n_body,) 1/kg; 0 for kinematic and static bodies
+    body_pos0: np.ndarray  # (n_body, 3) m, initial centre of mass
+    body_vel0: np.ndarray  # (n_body, 3) m/s, initial velocity (emitted: at emission)
+    body_quat0: np.ndarray  # (n_body, 4) initial orientation
+    body_color: np.ndarray  # (n_body, 4) RGBA in [0, 1]
+    body_shape: tuple  # (n_body,) dict | None: the scene's shape, normalised
+    body_emit_step: np.ndarray  # (n_body,) int64: step at which the body starts to move
+    force_body: np.ndarray  # (n_force,) int64 body index
+    force_vec: np.ndarray  # (n_force, 3) N, world frame, at the centre of mass
+    force_start: np.ndarray  # (n_force,) s
+    force_end: np.ndarray  # (n_force,) s (inf: never ends)
+    output: OutputSpec
+    scene_file: str = ""
+    scene_text: str = ""
+    has_emitters: bool = False
+    body_index: dict = field(default_factory=dict)  # name -> index
+
+    @property
+    def n_body(self) -> int:
+        return len(self.body_name)
+
+    @property
+    def duration(self) -> float:
+        """s, simulated time of the whole run."""
+        return self.n_steps * self.dt
+
+    @property
+    def n_frames(self) -> int:
+        return -(-self.n_steps // self.steps_per_frame)
+
+
+def _frozen(array) -> np.ndarray:
+    out = np.array(array, dtype=float if not np.issubdtype(np.asarray(array).dtype,
+                                                             np.integer) else np.int64)
+    out.flags.writeable = False
+    return out
+
+
+def _vec3(values, dim: int) -> list[float]:
+    """A scene vector (2 or 3 numbers) as a 3-vector; 2D vectors get z = 0."""
+    values = [float(v) for v in values]
+    return values + [0.0] * (3 - len(values)) if dim == 2 else values
+
+
+def _fit_steps(interval: float, dt: float) -> int:
+    """Smallest whole k with interval / k <= dt (1e-9 slack for decimal round-off)."""
+    return max(1, math.ceil(interval / dt - 1e-9))
+
+
+def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = None) -> Model:
+    """Scene spec -> frozen Model. Raises InputError with located problems."""
+    data = scene.data
+    problems: list[Problem] = []
+    dim = int(data.get("dimension", 3))
+
+    # --- time grid
+    frame_rate = float(data.get("frame_rate", DEFAULT_FRAME_RATE))
+    dt_requested = float(data.get("dt", DEFAULT_DT))
+    frame_interval = 1.0 / frame_rate
+    steps_per_frame = _fit_steps(frame_interval, dt_requested)
+    dt = frame_interval / steps_per_frame
+    if abs(dt - dt_requested) <= 1e-12 * dt_requested:
+        dt = dt_requested
+    duration = float(data["duration"])
+    ratio = duration / dt
+    n_steps = round(ratio) if abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio) else \
+        math.ceil(ratio)
+    n_steps = max(n_steps, 1)
+    if n_steps > MAX_STEPS:
+        problems.append(scene.problem(("duration",), f"the run would take {n_steps:.3g} steps "
+                                      f"(more than {MAX_STEPS:.0e})", "use a larger dt or a "
+                                      "shorter duration"))
+
+    # --- output
+    out = data.get("output") or {}
+    rate = float(out.get("rate", frame_rate))
+    every = (1.0 / rate) / dt
+    every_steps = round(every)
+    if every_steps < 1 or abs(every - every_steps) > 1e-6 * every:
+        fits = sorted({round(1.0 / (dt * k), 6) for k in range(1, 6)}, reverse=True)
+        problems.append(scene.problem(
+            ("output", "rate"), f"1/rate = {1.0 / rate:.6g} s is not a whole number of physics "
+            f"steps (dt = {dt:.6g} s)", "rates that fit: " + ", ".join(f"{r:g}" for r in fits)
+            + " Hz"))
+    output = _output_spec(scene, out, output_override, max(every_steps, 1), problems)
+
+    # --- bodies, then emitted particles
+    names: list[str] = []
+    kinds, masses, pos0, vel0, quat0, colors, shapes, emit = [], [], [], [], [], [], [], []
+    force_body, force_vec, force_start, force_end = [], [], [], []
+    for i, body in enumerate(data.get("bodies") or []):
+        at = ("bodies", i)
+        kind = BODY_TYPES[body.get("type", "dynamic")]
+        velocity = body.get("velocity")
+        names.append(body["name"])
+        kinds.append(kind)
+        masses.append(float(body["mass"]) if kind == BODY_DYNAMIC else math.inf)
+        pos0.append(_vec3(body.get("position", [0.0] * dim), dim))
+        vel0.append(_vec3(velocity or [0.0] * dim, dim) if kind != BODY_STATIC else [0.0] * 3)
+        quat0.append(_orientation(body))
+        colors.append(_color(body.get("color"), len(colors)))
+        shapes.append(_shape(body.get("shape"), dim))
+        if shapes[-1] is not None and shapes[-1]["type"] == "mesh":
+            shapes[-1]["path"] = _existing_file(scene, at + ("shape", "file"), problems)
+        emit.append(0)
+        for force in body.get("forces") or []:
+            force_body.append(len(names) - 1)
+            force_vec.append(_vec3(force["force"], dim))
+            force_start.append(float(force.get("start", 0.0)))
+            force_end.append(float(force.get("end", math.inf)))
+    for emitter in data.get("emitters") or []:
+        for particle in _emit(emitter, dim, dt):
+            names.append(particle["name"])
+            kinds.append(BODY_DYNAMIC)
+            masses.append(float(emitter["mass"]))
+            pos0.append(particle["position"])
+            vel0.append(particle["velocity"])
+            quat0.append(IDENTITY_QUAT)
+            colors.append(_color(emitter.get("color"), len(colors)))
+            shapes.append({"type": "sphere",
+                           "radius": float(emitter.get("radius", DEFAULT_PARTICLE_RADIUS))})
+            emit.append(particle["emit_step"])
+
+    if problems:
+        raise InputError(problems)
+
+    n = len(names)
+    mass = np.array(masses, dtype=float)
+    gravity = data.get("gravity", list(DEFAULT_GRAVITY[:dim]))
+    return Model(
+        name=str(data.get("name", Path(scene.file).stem)),
+        dimension=dim,
+        dt=dt,
+        dt_requested=dt_requested,
+        frame_rate=frame_rate,
+        steps_per_frame=steps_per_frame,
+        n_steps=n_steps,
+        integrator=str(data.get("integrator", "symplectic-euler")),
+        gravity=_frozen(_vec3(gravity, dim)),
+        body_name=tuple(names),
+        body_type=_frozen(np.array(kinds, dtype=np.int64)),
+        body_mass=_frozen(mass),
+        body_inv_mass=_frozen(np.where(np.isfinite(mass), 1.0 / mass, 0.0)),
+        body_pos0=_frozen(np.reshape(pos0, (n, 3))),
+        body_vel0=_frozen(np.reshape(vel0, (n, 3))),
+        body_quat0=_frozen(np.reshape(quat0, (n, 4))),
+        body_color=_frozen(np.reshape(colors, (n, 4))),
+        body_shape=tuple(shapes),
+        body_emit_step=_frozen(np.array(emit, dtype=np.int64)),
+        force_body=_frozen(np.array(force_body, dtype=np.int64)),
+        force_vec=_frozen(np.reshape(force_vec, (len(force_body), 3))),
+        force_start=_frozen(np.array(force_start, dtype=float)),
+        force_end=_frozen(np.array(force_end, dtype=float)),
+        output=output,
+        scene_file=scene.file,
+        scene_text=scene.text,
+        has_emitters=bool(data.get("emitters")),
+        body_index={name: i for i, name in enumerate(names)},
+    )
+
+
+def output_format_for(path: Path, explicit: str | None) -> str | None:
+    """The trajectory format: explicit, else from the suffix. None when unknown."""
+    if explicit:
+        return explicit
+    suffix = path.suffix.lower()
+    return {".mcap": "mcap", ".csv": "csv", ".tum": "tum"}.get(suffix)
+
+
+def _output_spec(scene: Scene, out: dict, override, every_steps: int,
+                 problems: list[Problem]) -> OutputSpec:
+    if override is not None:
+        path, fmt = override
+        return OutputSpec(Path(path), fmt, every_steps)
+    if "file" not in out:
+        return OutputSpec(None, None, every_steps)
+    path = scene.resolve_path(("output", "file"), problems)
+    if path is None:
+        return OutputSpec(None, None, every_steps)
+    fmt = output_format_for(path, out.get("format"))
+    if fmt is None:
+        problems.append(scene.problem(("output", "file"), f"cannot tell the format of "
+                                      f"'{out['file']}'", "use a .mcap or .csv suffix, or set "
+                                      "output.format (tum writes a folder)"))
+    return OutputSpec(path, fmt, every_steps)
+
+
+def _existing_file(scene: Scene, path: tuple, problems: list[Problem]) -> str | None:
+    resolved = scene.resolve_path(path, problems)
+    if resolved is not None and not resolved.is_file():
+        problems.append(scene.problem(path, f"file '{scene.get(path)}' not found",
+                                      f"paths are relative to {scene.base_dir}"))
+        return None
+    return str(resolved) if resolved is not None else None
+
+
+def _orientation(body: dict) -> np.ndarray:
+    if "orientation" in body:
+        return quat_normalize(body["orientation"])
+    if "euler_deg" in body:
+        return quat_from_euler_deg(body["euler_deg"])
+    if "angle_deg" in body:
+        return quat_normalize(quat_from_axis_angle([0, 0, 1], math.radians(body["angle_deg"])))
+    return IDENTITY_QUAT
+
+
+def _color(color, index: int) -> np.ndarray:
+    if color is None:
+        return PALETTE[index % len(PALETTE)]
+    return np.array(list(color) + [1.0] * (4 - len(color)), dtype=float)
+
+
+def _shape(shape: dict | None, dim: int) -> dict | None:
+    """The scene's shape with vectors made 3D and plane normals made unit length."""
+    if shape is None:
+        return None
+    shape = dict(shape)
+    if shape["type"] == "box":
+        size = _vec3(shape["size"], dim)
+        shape["size"] = size if dim == 3 else size[:2] + [0.0]
+    if shape["type"] == "plane":
+        normal = np.array(_vec3(shape["normal"], dim))
+        shape["normal"] = list(normal / np.linalg.norm(normal))
+        shape["offset"] = float(shape.get("offset", 0.0))
+        shape["orientation"] = list(quat_rotating([0, 1, 0], shape["normal"]))
+    return shape
+
+
+def _emit(emitter: dict, dim: int, dt: float) -> list[dict]:
+    """Particles of one emitter: deterministic for a seed on every platform (PCG64)."""
+    rng = np.random.Generator(np.random.PCG64(int(emitter.get("seed", 0))))
+    count = int(emitter["count"])
+    axis = np.array(_vec3(emitter.get("direction", [0.0, 1.0, 0.0][:dim]), dim), dtype=float)
+    axis /= np.linalg.norm(axis)
+    spread = math.radians(float(emitter.get("spread_deg", 0.0)))
+    jitter = float(emitter.get("speed_jitter", 0.0))
+    speed = float(emitter["speed"]) * (1.0 + jitter * rng.uniform(-1.0, 1.0, count))
+    if dim == 3:
+        # Uniform over the spherical cap of half-angle `spread` around `axis`.
+        cos_theta = rng.uniform(math.cos(spread), 1.0, count)
+        phi = rng.uniform(0.0, 2.0 * math.pi, count)
+        sin_theta = np.sqrt(np.maximum(0.0, 1.0 - cos_theta ** 2))
+        helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+        u = np.cross(axis, helper)
+        u /= np.linalg.norm(u)
+        w = np.cross(axis, u)
+        dirs = (cos_theta[:, None] * axis + (sin_theta * np.cos(phi))[:, None] * u
+                + (sin_theta * np.sin(phi))[:, None] * w)
+    else:
+        theta = rng.uniform(-spread, spread, count)
+        c, s = np.cos(theta), np.sin(theta)
+        dirs = np.stack([c * axis[0] - s * axis[1], s * axis[0] + c * axis[1],
+                         np.zeros(count)], axis=1)
+    nozzle = _vec3(emitter.get("position", [0.0] * dim), dim)
+    rate = float(emitter["rate"])
+    width = max(4, len(str(count - 1)))
+    return [{"name": f"{emitter['name']}.{i:0{width}d}", "position": nozzle,
+             "velocity": list(speed[i] * dirs[i]),
+             "emit_step": _fit_steps_up(i / rate, dt)} for i in range(count)]
+
+
+def _fit_steps_up(t: float, dt: float) -> int:
+    """First step index whose time is >= t (1e-9 slack for decimal round-off)."""
+    return max(0, math.ceil(t / dt - 1e-9))

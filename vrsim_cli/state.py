@@ -1,0 +1,65 @@
+"""The mutable part of a run: positions, velocities, orientations at one instant.
+
+Layer 3. Structure-of-arrays numpy over bodies, named `body_<property>` with shape and
+unit. Step functions take a State and return a new one (`replace`), so a stage can never
+half-update the state another stage reads.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from vrsim_cli.model import Model
+
+
+@dataclass(frozen=True)
+class State:
+    """Dynamic variables at time `t = step * model.dt`.
+
+    body_pos: (n_body, 3) m, centre of mass in world coordinates
+    body_vel: (n_body, 3) m/s
+    body_quat: (n_body, 4) orientation [w, x, y, z]
+    body_angvel: (n_body, 3) rad/s, world frame
+    """
+
+    step: int
+    t: float
+    body_pos: np.ndarray
+    body_vel: np.ndarray
+    body_quat: np.ndarray
+    body_angvel: np.ndarray
+
+    def replace(self, **changes) -> "State":
+        return dataclasses.replace(self, **changes)
+
+
+def make_state(model: Model) -> State:
+    """The state at t = 0. Emitted particles wait at the nozzle with zero velocity."""
+    waiting = model.body_emit_step > 0
+    vel = np.where(waiting[:, None], 0.0, model.body_vel0)
+    return State(
+        step=0,
+        t=0.0,
+        body_pos=np.array(model.body_pos0, dtype=float),
+        body_vel=np.array(vel, dtype=float),
+        body_quat=np.array(model.body_quat0, dtype=float),
+        body_angvel=np.zeros((model.n_body, 3)),
+    )
+
+
+STATE_ARRAYS = ("body_pos", "body_vel", "body_quat", "body_angvel")
+
+
+def state_hash(state: State) -> str:
+    """sha256 of the state's time and arrays (little-endian float64): equal hashes mean
+    bit-identical states."""
+    digest = hashlib.sha256()
+    digest.update(np.int64(state.step).astype("<i8").tobytes())
+    digest.update(np.float64(state.t).astype("<f8").tobytes())
+    for name in STATE_ARRAYS:
+        digest.update(np.ascontiguousarray(getattr(state, name), dtype="<f8").tobytes())
+    return digest.hexdigest()
