@@ -1,0 +1,230 @@
+"""The `vrsim` command through click's CliRunner: exit codes, messages, options."""
+
+from __future__ import annotations
+
+import errno
+import json
+
+import pytest
+
+from conftest import SCENARIOS
+from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.writers.atomic import AtomicFile
+
+BALL = """
+vrsim: 1
+name: drop
+duration: 1.0
+frame_rate: 50
+dt: 0.01
+bodies: [{name: ball, mass: 1, position: [0, 10, 0]}]
+"""
+
+
+def test_run_writes_and_summarises(invoke, write_scene, tmp_path):
+    out = tmp_path / "ball.csv"
+    result = invoke("run", write_scene(BALL), "-o", out)
+    assert result.exit_code == 0, result.output
+    assert result.stdout.startswith("drop: simulated 1 s in 100 steps of 0.01 s, wall ")
+    assert f"real time -> {out}" in result.stdout
+    assert "state sha256:" in result.stdout
+    assert len(read_trajectory(out).times) == 51
+
+
+def test_run_without_output_writes_nothing_and_says_so(invoke, write_scene, tmp_path):
+    result = invoke("run", write_scene(BALL))
+    assert result.exit_code == 0 and "(no output: use -o FILE)" in result.stdout
+    assert [p.name for p in tmp_path.iterdir()] == ["scene.yaml"]
+
+
+def test_scene_output_file_is_relative_to_the_scene(invoke, write_scene, tmp_path):
+    scene = write_scene(BALL + "output: {file: traj.mcap, rate: 10}\n")
+    assert invoke("run", scene).exit_code == 0
+    assert len(read_trajectory(tmp_path / "traj.mcap").times) == 11
+
+
+def test_overrides(invoke, write_scene, tmp_path):
+    out = tmp_path / "o.csv"
+    result = invoke("run", write_scene(BALL), "-o", out, "--duration", "0.5", "--dt", "0.005",
+                    "--integrator", "rk4")
+    assert result.exit_code == 0, result.output
+    assert "simulated 0.5 s in 100 steps of 0.005 s" in result.stdout
+    traj = read_trajectory(out)
+    assert traj.tracks["ball"].pos[-1, 1] == pytest.approx(10 - 9.81 * 0.125, abs=1e-12)
+
+
+def test_dt_that_does_not_fit_the_frame_is_reduced_with_a_note(invoke, write_scene):
+    result = invoke("run", write_scene(BALL.replace("dt: 0.01", "dt: 0.003")))
+    assert result.exit_code == 0
+    assert "note: dt = 0.003 s does not divide the frame interval 1/50 s; using dt = " \
+           "0.00285714 s (7 steps per frame)" in result.stderr
+
+
+def test_quiet_prints_nothing(invoke, write_scene):
+    result = invoke("run", write_scene(BALL), "-q")
+    assert result.exit_code == 0 and result.output == ""
+
+
+def test_profile_lists_the_stages(invoke, write_scene):
+    result = invoke("run", write_scene(BALL), "--profile")
+    assert result.exit_code == 0
+    for stage in ("dynamics", "checks", "output"):
+        assert f"\n{stage} " in result.stdout
+
+
+def test_realtime_paces_to_the_wall_clock(invoke, write_scene):
+    import time
+    start = time.perf_counter()
+    result = invoke("run", write_scene(BALL.replace("duration: 1.0", "duration: 0.3")),
+                    "--realtime")
+    assert result.exit_code == 0
+    assert time.perf_counter() - start >= 0.3
+    assert "realtime: missed " in result.stdout and " of 15 frame deadlines" in result.stdout
+
+
+def test_bad_scene_exits_2_with_located_errors(invoke, write_scene):
+    path = write_scene("vrsim: 1\nduration: 1\nbodies: [{name: b, mass: 1, restitutoin: 1}]\n")
+    result = invoke("run", path)
+    assert result.exit_code == 2
+    assert result.stderr == (f"error: {path}:3:29: bodies[0].restitutoin: unknown key "
+                             f"'restitutoin' (allowed here: name, type, shape, mass, position, "
+                             f"velocity, orientation, euler_deg, angle_deg, color, forces)\n")
+    assert "Traceback" not in result.output
+
+
+def test_missing_scene_exits_2(invoke, tmp_path):
+    result = invoke("run", tmp_path / "none.yaml")
+    assert result.exit_code == 2 and "no such file" in result.stderr
+
+
+@pytest.mark.parametrize("args,message", [
+    (["-o", "x.txt"], "cannot tell the format of 'x.txt'"),
+    (["-o", "/nonexistent-dir/x.csv"], "folder '/nonexistent-dir' does not exist"),
+    (["--format", "csv"], "--format needs -o/--output"),
+    (["--dt", "-1"], "Invalid value for '--dt'"),
+    (["--integrator", "heun"], "Invalid value for '--integrator'"),
+])
+def test_usage_errors_exit_2(invoke, write_scene, args, message):
+    result = invoke("run", write_scene(BALL), *args)
+    assert result.exit_code == 2 and message in result.stderr
+
+
+def test_blow_up_exits_1_and_keeps_the_output(invoke, write_scene, tmp_path):
+    scene = write_scene(BALL.replace(
+        "bodies: [", "bodies: [{name: rocket, mass: 1.0e-10, "
+                     "forces: [{force: [1.0e300, 0, 0], start: 0.5}]}, "))
+    out = tmp_path / "o.csv"
+    result = invoke("run", scene, "-o", out)
+    assert result.exit_code == 1
+    assert result.stderr.startswith("error: body 'rocket', t = 0.51 s: position or velocity "
+                                    "is not finite")
+    assert f"output up to the last good state kept in {out}" in result.stderr
+    traj = read_trajectory(out)
+    assert traj.tracks["rocket"].t[-1] == pytest.approx(0.5)  # the last good state
+
+
+class _SmallDisk:
+    """A file that takes `room` bytes and then fails like a full disk."""
+
+    def __init__(self, file, room: int):
+        self._file, self._room = file, room
+
+    def write(self, data):
+        self._room -= len(data)
+        if self._room < 0:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return self._file.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self._file, name)
+
+
+@pytest.mark.parametrize("name", ["o.csv", "o.mcap", "o.tum"])
+def test_disk_full_leaves_the_previous_output_untouched(invoke, write_scene, tmp_path,
+                                                        monkeypatch, name):
+    out = tmp_path / name
+    args = ["--format", "tum"] if name.endswith(".tum") else []
+    if name.endswith(".tum"):
+        out.mkdir()
+        (out / "ball.tum").write_text("previous run\n")
+    else:
+        out.write_text("previous run\n")
+    real_init = AtomicFile.__init__
+
+    def small_disk_init(self, path):
+        real_init(self, path)
+        self.file = _SmallDisk(self.file, room=300)
+
+    monkeypatch.setattr(AtomicFile, "__init__", small_disk_init)
+    result = invoke("run", write_scene(BALL), "-o", out, *args)
+    assert result.exit_code == 1
+    assert "No space left on device" in result.stderr and "Traceback" not in result.output
+    if name.endswith(".tum"):
+        assert (out / "ball.tum").read_text() == "previous run\n"
+        assert [p.name for p in out.iterdir()] == ["ball.tum"]
+    else:
+        assert out.read_text() == "previous run\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, "scene.yaml"])
+
+
+def test_validate(invoke, write_scene, tmp_path):
+    good = write_scene(BALL, "good.yaml")
+    bad = write_scene("vrsim: 1\nduration: x\n", "bad.yaml")
+    result = invoke("validate", good)
+    assert result.exit_code == 0
+    assert result.stdout == f"{good}: ok (1 bodies, 1 s in 100 steps of 0.01 s, symplectic-euler)\n"
+    result = invoke("validate", good, bad)
+    assert result.exit_code == 2
+    assert f"{good}: ok" in result.stdout
+    assert f"error: {bad}:2:11: duration: expected a number" in result.stderr
+
+
+def test_every_shipped_scenario_validates(invoke):
+    files = sorted(SCENARIOS.glob("*.yaml"))
+    assert files
+    result = invoke("validate", *files)
+    assert result.exit_code == 0, result.output
+
+
+def test_schema_prints_the_json_schema(invoke):
+    result = invoke("schema")
+    schema = json.loads(result.stdout)
+    assert schema["$schema"].endswith("2020-12/schema")
+    assert "bodies" in schema["properties"]
+
+
+def test_info(invoke, write_scene, tmp_path):
+    out = tmp_path / "o.mcap"
+    invoke("run", write_scene(BALL), "-o", out)
+    result = invoke("info", out)
+    assert result.exit_code == 0
+    assert result.stdout.splitlines()[:3] == [
+        f"{out}: mcap, 1 entities, 51 samples", "time: 0 .. 1 s (duration 1 s)",
+        "entities: ball"]
+    assert "/tf              foxglove.FrameTransforms   51 messages" in result.stdout
+    data = json.loads(invoke("info", out, "--json").stdout)
+    assert data["samples"] == 51 and data["vrsim"]["integrator"] == "symplectic-euler"
+
+
+@pytest.mark.parametrize("content,message", [
+    (b"garbage", "not a readable MCAP file"),
+    (b"", "not a readable MCAP file"),
+])
+def test_info_on_a_broken_mcap_exits_2(invoke, tmp_path, content, message):
+    path = tmp_path / "broken.mcap"
+    path.write_bytes(content)
+    result = invoke("info", path)
+    assert result.exit_code == 2 and message in result.stderr
+
+
+def test_info_on_a_broken_csv_exits_2(invoke, tmp_path):
+    path = tmp_path / "broken.csv"
+    path.write_text("t,entity,px,py,pz,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz\n0,a,1,2\n")
+    result = invoke("info", path)
+    assert result.exit_code == 2
+    assert result.stderr == f"error: {path}:2:1: (document): expected 15 columns, got 4\n"
+
+
+def test_version(invoke):
+    from vrsim_cli import __version__
+    assert invoke("--version").stdout.strip() == f"vrsim, version {__version__}"

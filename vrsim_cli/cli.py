@@ -1,0 +1,314 @@
+"""Layer 8: the `vrsim` command. Thin click commands; errors become exit codes.
+
+Exit codes: 0 ok, 1 the run failed, 2 usage or input error, 130/143 interrupted by
+SIGINT/SIGTERM (the output is finalised first).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import signal
+import sys
+import threading
+import time
+from functools import wraps
+from pathlib import Path
+
+import click
+
+from vrsim_cli import __version__
+from vrsim_cli.errors import EXIT_INPUT, InputError, SimulationError, VrsimError
+from vrsim_cli.scene import scene_schema
+
+# Choices come from the shipped schema (cheap to read), so `vrsim --help` need not import
+# numpy; tests check that the model and integrators agree with it.
+INTEGRATORS = tuple(scene_schema()["$defs"]["integrator"]["enum"])
+OUTPUT_FORMATS = tuple(scene_schema()["$defs"]["output"]["properties"]["format"]["enum"])
+
+PROGRESS_AFTER_S = 1.0  # show a progress bar once a run has taken this long
+
+
+def _reports_errors(command):
+    """Turn VrsimError into a message on stderr and its exit code: never a traceback."""
+
+    @wraps(command)
+    def wrapper(*args, **kwargs):
+        try:
+            return command(*args, **kwargs)
+        except InputError as exc:
+            for line in exc.lines():
+                click.echo(f"error: {line}", err=True)
+            sys.exit(exc.exit_code)
+        except VrsimError as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(exc.exit_code)
+
+    return wrapper
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="vrsim")
+def cli():
+    """vrsim: run real-time animation and simulation scenarios headless.
+
+    Scenes are YAML files (see `vrsim schema` and docs/scene-format.md); trajectories go to
+    MCAP (Foxglove), CSV or TUM.
+    """
+
+
+# ----------------------------------------------------------------------------- run
+
+
+class _Signals(contextlib.AbstractContextManager):
+    """Turn SIGINT/SIGTERM into a flag the loop polls once per frame, so the output is
+    finalised instead of cut off. Only the main thread can install handlers."""
+
+    def __init__(self):
+        self.received: int | None = None
+        self.previous: dict = {}
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, _frame):
+        self.received = signum
+
+    def __exit__(self, *exc):
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
+        return False
+
+
+class _Progress:
+    """A one-line progress bar on a terminal, shown only for runs longer than ~1 s."""
+
+    def __init__(self, model, enabled: bool):
+        self.model = model
+        self.enabled = enabled and sys.stderr.isatty()
+        self.start = time.perf_counter()
+        self.last = 0.0
+        self.shown = False
+
+    def __call__(self, state) -> None:
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        if now - self.start < PROGRESS_AFTER_S or now - self.last < 0.1:
+            return
+        self.last = now
+        frac = state.step / self.model.n_steps
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(f"\r[{bar:<30}] {100 * frac:5.1f}%  t = {state.t:.3f} / "
+                         f"{self.model.duration:.3f} s")
+        sys.stderr.flush()
+        self.shown = True
+
+    def clear(self) -> None:
+        if self.shown:
+            sys.stderr.write("\r" + " " * 70 + "\r")
+            sys.stderr.flush()
+
+
+def _output_target(output: str | None, fmt: str | None):
+    """(path, format) from -o/--format, or None. Usage errors exit 2."""
+    from vrsim_cli.model import output_format_for
+
+    if output is None:
+        if fmt:
+            raise click.UsageError("--format needs -o/--output")
+        return None
+    path = Path(output)
+    fmt = output_format_for(path, fmt)
+    if fmt is None:
+        raise click.UsageError(f"cannot tell the format of '{output}': use a .mcap or .csv "
+                               f"suffix, or --format tum with a folder")
+    if not path.parent.is_dir():
+        raise click.UsageError(f"folder '{path.parent}' does not exist")
+    if fmt != "tum" and path.is_dir():
+        raise click.UsageError(f"'{output}' is a folder; give a file name")
+    return path, fmt
+
+
+@cli.command()
+@click.argument("scene_file", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", type=click.Path(), help="Trajectory file: .mcap or .csv, or a "
+              "folder with --format tum. Overrides the scene's output.file.")
+@click.option("--format", "fmt", type=click.Choice(OUTPUT_FORMATS), help="Output format "
+              "(default: from the suffix).")
+@click.option("--duration", type=click.FloatRange(min=0, min_open=True), help="Simulated "
+              "time in s (overrides the scene).")
+@click.option("--dt", type=click.FloatRange(min=0, min_open=True), help="Largest physics "
+              "step in s (overrides the scene).")
+@click.option("--integrator", type=click.Choice(INTEGRATORS), help="Integrator (overrides "
+              "the scene).")
+@click.option("--realtime", is_flag=True, help="Pace the loop to the wall clock and report "
+              "missed frame deadlines.")
+@click.option("--profile", is_flag=True, help="Print the time spent in each loop stage.")
+@click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
+@_reports_errors
+def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet):
+    """Run SCENE_FILE and write its trajectory."""
+    from vrsim_cli.loop import run as run_loop
+    from vrsim_cli.model import compile_model
+    from vrsim_cli.scene import load_scene
+    from vrsim_cli.state import make_state
+    from vrsim_cli.writers import open_writer
+
+    target = _output_target(output, fmt)
+    scene = load_scene(scene_file).with_overrides({
+        ("duration",): (duration, "--duration"), ("dt",): (dt, "--dt"),
+        ("integrator",): (integrator, "--integrator")})
+    model = compile_model(scene, output_override=target)
+    say = (lambda *a, **k: None) if quiet else click.echo
+    if model.dt != model.dt_requested:
+        say(f"note: dt = {model.dt_requested:g} s does not divide the frame interval "
+            f"1/{model.frame_rate:g} s; using dt = {model.dt:.6g} s "
+            f"({model.steps_per_frame} steps per frame)", err=True)
+    writer = open_writer(model, model.output.path, model.output.format) \
+        if model.output.path is not None else None
+    progress = _Progress(model, enabled=not quiet)
+    state = make_state(model)
+    failure = None
+    with _Signals() as signals:
+        try:
+            result = run_loop(model, state, writer, realtime=realtime,
+                              should_stop=lambda: signals.received is not None,
+                              on_frame=progress)
+        except SimulationError as exc:
+            failure = exc  # finalise the output up to the last good state, then report
+        except BaseException:  # an output error, or a bug: keep any previous file
+            progress.clear()
+            if writer is not None:
+                writer.abort()
+            raise
+        finally:
+            progress.clear()
+    if writer is not None:
+        try:
+            writer.close()
+        except VrsimError:
+            writer.abort()
+            raise
+    if failure is not None:
+        kept = f"; output up to the last good state kept in {model.output.path}" \
+            if writer is not None else ""
+        click.echo(f"error: {failure}{kept}", err=True)
+        sys.exit(failure.exit_code)
+    _summary(model, result, say, profile, realtime)
+    if result.interrupted:
+        name = signal.Signals(signals.received).name
+        click.echo(f"interrupted by {name} at t = {result.state.t:.6g} s; output finalised",
+                   err=True)
+        sys.exit(128 + signals.received)
+
+
+def _summary(model, result, say, profile: bool, realtime: bool) -> None:
+    from vrsim_cli.state import state_hash
+
+    state = result.state
+    factor = state.t / result.wall_s if result.wall_s > 0 else float("inf")
+    where = f" -> {model.output.path}" if model.output.path is not None else \
+        " (no output: use -o FILE)"
+    say(f"{model.name}: simulated {state.t:.6g} s in {state.step} steps of {model.dt:.6g} s, "
+        f"wall {result.wall_s:.3f} s, {factor:.1f}x real time{where}")
+    say(f"state sha256:{state_hash(state)}")
+    if realtime:
+        say(f"realtime: missed {result.missed_deadlines} of {result.frames} frame deadlines "
+            f"(worst {1e3 * result.worst_late_s:.2f} ms late)")
+    if profile:
+        total = sum(result.profile.values()) or 1.0
+        say(f"{'stage':<10} {'total s':>9} {'us/step':>9} {'share':>6}")
+        for stage, seconds in result.profile.items():
+            per = 1e6 * seconds / max(state.step, 1)
+            say(f"{stage:<10} {seconds:>9.4f} {per:>9.2f} {100 * seconds / total:>5.1f}%")
+
+
+# ----------------------------------------------------------------------------- validate
+
+
+@cli.command()
+@click.argument("scene_files", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("-q", "--quiet", is_flag=True, help="Print only problems.")
+def validate(scene_files, quiet):
+    """Check scene files; report every problem with FILE:LINE:COL."""
+    from vrsim_cli.model import compile_model
+    from vrsim_cli.scene import load_scene
+
+    failed = False
+    for file in scene_files:
+        try:
+            model = compile_model(load_scene(file))
+        except InputError as exc:
+            failed = True
+            for line in exc.lines():
+                click.echo(f"error: {line}", err=True)
+            continue
+        if not quiet:
+            click.echo(f"{file}: ok ({model.n_body} bodies, {model.duration:g} s in "
+                       f"{model.n_steps} steps of {model.dt:.6g} s, {model.integrator})")
+    sys.exit(EXIT_INPUT if failed else 0)
+
+
+# ----------------------------------------------------------------------------- schema
+
+
+@cli.command()
+def schema():
+    """Print the JSON Schema of scene files (for editors and yaml-language-server)."""
+    click.echo(json.dumps(scene_schema(), indent=2))
+
+
+# ----------------------------------------------------------------------------- info
+
+
+@cli.command()
+@click.argument("trajectory_file", type=click.Path())
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+@_reports_errors
+def info(trajectory_file, as_json):
+    """Summarise a trajectory file: entities, duration, samples, channels."""
+    from vrsim_cli.trajectory import read_trajectory
+
+    traj = read_trajectory(trajectory_file)
+    times = traj.times
+    summary = {
+        "file": trajectory_file, "format": traj.format,
+        "entities": list(traj.tracks),
+        "samples": int(len(times)),
+        "start_s": float(times[0]) if len(times) else None,
+        "end_s": float(times[-1]) if len(times) else None,
+        "duration_s": float(times[-1] - times[0]) if len(times) else 0.0,
+        "channels": [{"topic": t, "schema": s, "messages": n} for t, s, n in traj.channels],
+        "vrsim": {k: v for k, v in traj.metadata.get("vrsim", {}).items() if k != "scene"},
+    }
+    if as_json:
+        click.echo(json.dumps(summary, indent=2))
+        return
+    click.echo(f"{trajectory_file}: {traj.format}, {len(traj.tracks)} entities, "
+               f"{summary['samples']} samples")
+    if len(times):
+        click.echo(f"time: {summary['start_s']:.6g} .. {summary['end_s']:.6g} s "
+                   f"(duration {summary['duration_s']:.6g} s)")
+    names = list(traj.tracks)
+    shown = ", ".join(names[:10]) + (f", ... ({len(names) - 10} more)" if len(names) > 10 else "")
+    click.echo(f"entities: {shown}")
+    if traj.channels:
+        click.echo("channels:")
+        for ch in summary["channels"]:
+            click.echo(f"  {ch['topic']:<16} {ch['schema']:<26} {ch['messages']} messages")
+    made = summary["vrsim"]
+    if made:
+        click.echo(f"made by vrsim {made.get('version', '?')} from {made.get('scene_file', '?')}"
+                   f" (dt {made.get('dt', '?')} s, {made.get('integrator', '?')})")
+
+
+def main() -> None:
+    cli(prog_name="vrsim")
+
+
+if __name__ == "__main__":
+    main()
