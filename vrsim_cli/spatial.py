@@ -72,3 +72,86 @@ def quat_rotating(from_vec, to_vec) -> np.ndarray:
         return quat_from_axis_angle(perp, np.pi)
     q = np.concatenate([[1.0 + cos], np.cross(a, b)])
     return quat_normalize(q)
+
+
+def quat_conjugate(q) -> np.ndarray:
+    """Inverse of unit quaternion(s) (..., 4)."""
+    q = np.asarray(q, dtype=float)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_rotate(q, v) -> np.ndarray:
+    """Rotate vector(s) v (..., 3) by unit quaternion(s) q (..., 4)."""
+    q = np.asarray(q, dtype=float)
+    v = np.asarray(v, dtype=float)
+    if q.ndim == 1 and v.ndim == 1:  # one vector: np.cross costs ~20 us, this ~2 us
+        w, x, y, z = q.tolist()
+        vx, vy, vz = v.tolist()
+        tx, ty, tz = 2.0 * (y * vz - z * vy), 2.0 * (z * vx - x * vz), 2.0 * (x * vy - y * vx)
+        return np.array([vx + w * tx + (y * tz - z * ty), vy + w * ty + (z * tx - x * tz),
+                         vz + w * tz + (x * ty - y * tx)])
+    w, u = q[..., :1], q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def quat_from_matrix(m) -> np.ndarray:
+    """(3, 3) rotation matrix -> unit quaternion [w, x, y, z] (Shepperd's method: divide by
+    the largest of the four candidate terms, so no branch loses precision)."""
+    m = np.asarray(m, dtype=float)
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    candidates = [trace, m[0, 0], m[1, 1], m[2, 2]]
+    k = int(np.argmax(candidates))
+    if k == 0:
+        s = 2.0 * np.sqrt(1.0 + trace)
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    elif k == 1:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+    elif k == 2:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    return quat_normalize(q)
+
+
+def look_rotation(forward, up, fallback_quat=None) -> np.ndarray:
+    """Orientation of a camera that looks along `forward` with `up` as up (OpenGL and X3D
+    convention: the camera looks along its local -z, local +y is up, local +x is right).
+
+    When forward is parallel to up the view has no defined roll; then `fallback_quat`'s
+    right axis is kept (or world x if there is none).
+    """
+    f = np.asarray(forward, dtype=float)
+    f = f / np.linalg.norm(f)
+    right = np.cross(f, np.asarray(up, dtype=float))
+    if np.linalg.norm(right) < 1e-9:
+        right = quat_rotate(fallback_quat, [1.0, 0.0, 0.0]) if fallback_quat is not None \
+            else np.array([1.0, 0.0, 0.0])
+        right = right - np.dot(right, f) * f
+    right = right / np.linalg.norm(right)
+    true_up = np.cross(right, f)
+    return quat_from_matrix(np.column_stack([right, true_up, -f]))
+
+
+def rotate_about_y(v, angle) -> np.ndarray:
+    """R_y(angle) v for a 3-vector. In the slides' (z, x) notation:
+    z' = z cos(a) - x sin(a), x' = x cos(a) + z sin(a) (right-handed, y up)."""
+    c, s = np.cos(angle), np.sin(angle)
+    x, y, z = v
+    return np.array([x * c + z * s, y, z * c - x * s])
+
+
+def quat_slerp(a, b, s: float) -> np.ndarray:
+    """Shortest-arc spherical interpolation between unit quaternions a (s=0) and b (s=1)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    dot = float(np.dot(a, b))
+    if dot < 0.0:
+        b, dot = -b, -dot
+    if dot > 1.0 - 1e-12:
+        return quat_normalize(a + s * (b - a))
+    theta = np.arccos(min(dot, 1.0))
+    return (np.sin((1.0 - s) * theta) * a + np.sin(s * theta) * b) / np.sin(theta)
