@@ -222,9 +222,38 @@ def test_info_on_a_broken_csv_exits_2(invoke, tmp_path):
     path.write_text("t,entity,px,py,pz,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz\n0,a,1,2\n")
     result = invoke("info", path)
     assert result.exit_code == 2
-    assert result.stderr == f"error: {path}:2:1: (document): expected 15 columns, got 4\n"
+    assert result.stderr == f"error: {path}:2:1: expected 15 columns, got 4\n"
 
 
 def test_version(invoke):
     from vrsim_cli import __version__
     assert invoke("--version").stdout.strip() == f"vrsim, version {__version__}"
+
+
+def test_progress_bar_on_a_terminal_for_long_runs(write_scene, monkeypatch):
+    import io
+    import vrsim_cli.cli as cli_module
+    from vrsim_cli.model import compile_model
+    from vrsim_cli.scene import load_scene
+    from vrsim_cli.state import make_state
+    from vrsim_cli.dynamics import step
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(cli_module.sys, "stderr", terminal)
+    monkeypatch.setattr(cli_module, "PROGRESS_AFTER_S", 0.0)
+    model = compile_model(load_scene(write_scene(BALL)))
+    progress = cli_module._Progress(model, enabled=True)
+    state = make_state(model)
+    for _ in range(50):
+        state = step(model, state)
+    progress(state)
+    assert "[###############               ]  50.0%  t = 0.500 / 1.000 s" in terminal.getvalue()
+    progress.clear()
+    assert terminal.getvalue().endswith("\r")
+    quiet = cli_module._Progress(model, enabled=False)
+    quiet(state)
+    assert terminal.getvalue().count("%") == 1

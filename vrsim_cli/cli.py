@@ -306,6 +306,59 @@ def info(trajectory_file, as_json):
                    f" (dt {made.get('dt', '?')} s, {made.get('integrator', '?')})")
 
 
+class _Numbers(click.ParamType):
+    """A comma-separated list of numbers, e.g. `-1,-0.99,-0.96`."""
+
+    name = "numbers"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        try:
+            return tuple(float(x) for x in str(value).split(",") if x.strip())
+        except ValueError:
+            self.fail(f"expected comma-separated numbers, got {value!r}", param, ctx)
+
+
+@cli.command("walk-table")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False),
+              help="Take the walk from this scene file instead of the slide's parameters.")
+@click.option("--format", "fmt", type=click.Choice(["markdown", "csv"]), default="markdown",
+              show_default=True)
+@click.option("--exact", is_flag=True, help="Full precision instead of truncation toward zero.")
+@click.option("--v-max", type=float, default=200.0, show_default=True, help="m/s")
+@click.option("--gamma-max", type=float, default=100.0, show_default=True, help="deg/s")
+@click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=0.1,
+              show_default=True, help="Frame interval in s.")
+@click.option("--position", nargs=2, type=float, default=(300.0, 300.0), show_default=True,
+              metavar="Z X", help="Start position V in the slide's (z, x) coordinates.")
+@click.option("--direction", nargs=2, type=float, default=(100.0, 100.0), show_default=True,
+              metavar="Z X", help="Start direction d in (z, x); not normalised.")
+@click.option("--alpha", type=_Numbers(), help="Alpha per frame, comma-separated "
+              "(default: the slide's -1,-0.99,...,0).")
+@click.option("--beta", type=_Numbers(), help="Beta per frame (default: equal to alpha, as on "
+              "the slide).")
+@_reports_errors
+def walk_table_command(scene_file, fmt, exact, v_max, gamma_max, dt, position, direction,
+                       alpha, beta):
+    """Print the walk table of slide 5.1, computed by the walk code of `vrsim run`."""
+    from vrsim_cli.scene import load_scene, parse_scene
+    from vrsim_cli.walk_table import SLIDE_ALPHAS, format_table, slide_scene_text, walk_table
+
+    for name, values in (("--alpha", alpha), ("--beta", beta)):
+        if values is not None and any(abs(v) > 1.0 for v in values):
+            raise click.BadParameter("values must lie in [-1, 1]", param_hint=name)
+    if scene_file is not None:
+        scene = load_scene(scene_file)
+    else:
+        alphas = alpha if alpha is not None else SLIDE_ALPHAS
+        text = slide_scene_text(position_zx=position, direction_zx=direction, v_max=v_max,
+                                gamma_max=gamma_max, dt=dt, alphas=alphas,
+                                betas=beta if beta is not None else alphas)
+        scene = parse_scene(text, "<walk-table options>")
+    click.echo(format_table(walk_table(scene), fmt, exact), nl=False)
+
+
 def main() -> None:
     cli(prog_name="vrsim")
 

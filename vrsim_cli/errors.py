@@ -34,18 +34,19 @@ def did_you_mean(word: str, candidates: Iterable[str]) -> str | None:
 
 @dataclass(frozen=True)
 class Problem:
-    """One located problem in an input file. `line` and `col` are 1-based (0: unknown)."""
+    """One located problem in an input file. `line` and `col` are 1-based (0: unknown).
+    `path` is the key path inside a scene file; None for data files without keys (CSV)."""
 
     file: str
     line: int
     col: int
-    path: tuple[str | int, ...]
+    path: tuple[str | int, ...] | None
     message: str
     hint: str | None = None
 
     def __str__(self) -> str:
         where = f"{self.file}:{self.line}:{self.col}" if self.line else self.file
-        if not self.line and not self.path:
+        if self.path is None or (not self.line and not self.path):
             text = f"{where}: {self.message}"
             return f"{text} ({self.hint})" if self.hint else text
         text = f"{where}: {format_key_path(self.path)}: {self.message}"

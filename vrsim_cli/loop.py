@@ -1,14 +1,16 @@
 """Layer 5: the simulation loop of slide 5.0, composed from the stages.
 
 One frame (at `frame_rate`):
-  1. read sensors                       (mouse, head tracker: the navigation issue)
-  2. simulate, `steps_per_frame` physics steps of `dt`:
-     2.1 dynamic motion                 (`dynamics.step`)
-     2.2 sensor-driven motion           (observer navigation: the navigation issue)
+  1. read sensors                       (`sensors.read`: mouse or head tracker)
+  2. simulate:
+     2.2 sensor-driven motion           (`navigation.step`, once per frame)
+     2.1 dynamic motion                 (`dynamics.step`, `steps_per_frame` steps of `dt`)
      2.3 collision response             (the collision issues)
   3. update the scene graph and render  (keyframes, frames: their issues)
 Trajectory samples are taken at the output rate, on the physics-step grid; the final state
-is always written. Each stage is timed into `RunResult.profile`.
+is always written. Between frame boundaries the observer moves at the frame's constant
+velocity (`navigation.within_frame`), so samples at any rate are consistent. Each stage is
+timed into `RunResult.profile`.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from vrsim_cli import dynamics
+from vrsim_cli import dynamics, navigation, sensors
 from vrsim_cli.errors import SimulationError
 from vrsim_cli.model import Model
 from vrsim_cli.state import State
@@ -43,6 +45,11 @@ class RunResult:
 
 def check_state(model: Model, state: State) -> None:
     """Raise SimulationError naming the first body whose state is not finite or runs away."""
+    if state.observer_pos is not None:
+        values = np.concatenate([state.observer_pos, state.observer_vel])
+        if not np.isfinite(values).all() or np.abs(state.observer_pos).max() >= MAX_POSITION_M:
+            raise SimulationError("the observer's position or velocity blew up",
+                                  body="observer", t=state.t)
     if model.n_body == 0:
         return
     pos, vel = state.body_pos, state.body_vel
@@ -71,7 +78,10 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
     written (if it was not yet) before SimulationError propagates.
     """
     clock = time.perf_counter
-    profile = {"dynamics": 0.0, "checks": 0.0, "output": 0.0}
+    profile = {"sensors": 0.0, "navigation": 0.0, "dynamics": 0.0, "checks": 0.0,
+               "output": 0.0}
+    record_input = getattr(writer, "write_input", None)
+    frame_dt = model.steps_per_frame * model.dt
     result = RunResult(state=state, profile=profile)
     every = model.output.every_steps
     last_written = -1
@@ -96,16 +106,29 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
             if should_stop is not None and should_stop():
                 result.interrupted = True
                 break
-            # 1. sensors: nothing to read until observer navigation exists.
-            # 2. simulate
+            t0 = clock()
+            inputs = sensors.read(model, frame, state.t)  # 1. read sensors
+            if inputs is not None and record_input is not None:
+                record_input(inputs)
+            t1 = clock()
+            profile["sensors"] += t1 - t0
+            frame_start = frame_end = state
+            if inputs is not None:  # 2.2 sensor-driven motion: the observer, once per frame
+                frame_end = navigation.step(model, state, inputs, frame_dt)
+                profile["navigation"] += clock() - t1
             steps = min(model.steps_per_frame, model.n_steps - state.step)
-            for _ in range(steps):
+            for k in range(steps):
                 t0 = clock()
-                new = dynamics.step(model, state)  # 2.1
+                new = dynamics.step(model, state)  # 2.1 dynamic motion
                 t1 = clock()
                 check_state(model, new)
+                t2 = clock()
                 profile["dynamics"] += t1 - t0
-                profile["checks"] += clock() - t1
+                profile["checks"] += t2 - t1
+                if inputs is not None:
+                    new = navigation.within_frame(model, new, frame_start, frame_end,
+                                                  (k + 1) / model.steps_per_frame)
+                    profile["navigation"] += clock() - t2
                 state = new
                 result.state = state
                 if state.step % every == 0:

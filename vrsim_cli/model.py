@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from vrsim_cli.errors import InputError, Problem
+from vrsim_cli.geometry import ANALYTIC
+from vrsim_cli.model_observer import InputModel, ObserverModel, compile_input, compile_observer
 from vrsim_cli.scene import Scene
 from vrsim_cli.spatial import (IDENTITY_QUAT, quat_from_axis_angle, quat_from_euler_deg,
                                quat_normalize, quat_rotating)
@@ -87,6 +89,9 @@ class Model:
     scene_text: str = ""
     has_emitters: bool = False
     body_index: dict = field(default_factory=dict)  # name -> index
+    observer: ObserverModel | None = None  # None: the scene has no observer
+    inputs: InputModel | None = None  # sensor values per frame (loop stage 1)
+    observer_obstacles: tuple = ()  # body indices the observer collides with and walks on
 
     @property
     def n_body(self) -> int:
@@ -194,12 +199,19 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
                            "radius": float(emitter.get("radius", DEFAULT_PARTICLE_RADIUS))})
             emit.append(particle["emit_step"])
 
+    gravity = data.get("gravity", list(DEFAULT_GRAVITY[:dim]))
+    n_frames = -(-n_steps // steps_per_frame)
+    # Frame start times, computed exactly as the loop computes them (step * dt), so that
+    # replayed input recorded by an earlier run lines up bit for bit.
+    frame_times = np.arange(n_frames) * steps_per_frame * dt
+    observer = compile_observer(scene, gravity, problems)
+    inputs = compile_input(scene, frame_times, observer, problems)
+
     if problems:
         raise InputError(problems)
 
     n = len(names)
     mass = np.array(masses, dtype=float)
-    gravity = data.get("gravity", list(DEFAULT_GRAVITY[:dim]))
     return Model(
         name=str(data.get("name", Path(scene.file).stem)),
         dimension=dim,
@@ -229,6 +241,12 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         scene_text=scene.text,
         has_emitters=bool(data.get("emitters")),
         body_index={name: i for i, name in enumerate(names)},
+        observer=observer,
+        inputs=inputs,
+        # Static and kinematic bodies with analytic shapes (meshes join with collision).
+        observer_obstacles=tuple(i for i, (kind, shape) in enumerate(zip(kinds, shapes))
+                                 if kind != BODY_DYNAMIC and shape is not None
+                                 and shape["type"] in ANALYTIC) if observer else (),
     )
 
 

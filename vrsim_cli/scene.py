@@ -433,6 +433,7 @@ def _semantic_problems(scene: Scene) -> Iterator[Problem]:
         for key in _EMITTER_VECTORS:
             yield from vector(at + (key,))
         yield from nonzero(at + ("direction",), "an emitter's direction")
+    yield from _observer_problems(scene, dim)
     # Emitted particles are named NAME.0000 ...: they must not collide with body names.
     for i, emitter in enumerate(data.get("emitters") or []):
         for name, path in names.items():
@@ -440,3 +441,42 @@ def _semantic_problems(scene: Scene) -> Iterator[Problem]:
             if path[0] == "bodies" and name.startswith(prefix) and name[len(prefix):].isdigit():
                 yield scene.problem(path, f"name '{name}' collides with a particle of "
                                           f"emitter '{emitter['name']}'")
+
+
+INPUT_SOURCES = ("mouse", "per_frame", "file", "tracker", "replay")
+
+
+def _observer_problems(scene: Scene, dim: int) -> Iterator[Problem]:
+    observer = scene.data.get("observer")
+    inputs = scene.data.get("input") or {}
+    sources = [k for k in INPUT_SOURCES if k in inputs]
+    if len(sources) > 1:
+        yield scene.problem(("input", sources[1]), f"give one input source, not "
+                            f"{' and '.join(sources)}", at_key=True)
+    if "input" in scene.data and observer is None:
+        yield scene.problem(("input",), "sensor input needs an observer to move",
+                            "add an observer: {mode: walk, ...}", at_key=True)
+    samples = inputs.get("mouse") or []
+    for i in range(1, len(samples)):
+        if samples[i]["t"] <= samples[i - 1]["t"]:
+            yield scene.problem(("input", "mouse", i, "t"), f"times must increase strictly: "
+                                f"{samples[i]['t']} after {samples[i - 1]['t']}")
+    if observer is None:
+        return
+    if dim != 3:
+        yield scene.problem(("observer",), "the observer needs a 3D scene", at_key=True)
+    if "direction" in observer and "look_at" in observer:
+        yield scene.problem(("observer", "look_at"), "give direction or look_at, not both",
+                            at_key=True)
+    for key in ("direction", "up"):
+        vec = observer.get(key)
+        if vec is not None and not any(vec):
+            yield scene.problem(("observer", key), f"the {key} vector must not be zero")
+    mode = observer.get("mode", "walk")
+    if "tracker" in inputs and mode != "tracked":
+        yield scene.problem(("observer", "mode") if "mode" in observer else ("observer",),
+                            f"input.tracker sets the pose directly, but the mode is '{mode}'",
+                            "use mode: tracked")
+    if mode == "tracked" and not ({"tracker", "replay"} & set(inputs)):
+        yield scene.problem(("observer", "mode"), "mode tracked needs input.tracker (or a "
+                            "replayed tracker run in input.replay)")

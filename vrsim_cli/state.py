@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vrsim_cli.model import Model
+from vrsim_cli.spatial import look_rotation, quat_rotate
 
 
 @dataclass(frozen=True)
@@ -24,6 +25,12 @@ class State:
     body_vel: (n_body, 3) m/s
     body_quat: (n_body, 4) orientation [w, x, y, z]
     body_angvel: (n_body, 3) rad/s, world frame
+    observer_pos: (3,) m, eye position V           (None when the scene has no observer)
+    observer_dir: (3,) view direction d, unnormalised as on slide 5.1
+    observer_quat: (4,) camera orientation (looks along local -z, local +y up)
+    observer_vel: (3,) m/s, velocity over the last frame
+    observer_angvel: (3,) rad/s, world frame, over the last frame
+    observer_fall: m/s along up while falling (walk), else 0
     """
 
     step: int
@@ -32,6 +39,12 @@ class State:
     body_vel: np.ndarray
     body_quat: np.ndarray
     body_angvel: np.ndarray
+    observer_pos: np.ndarray | None = None
+    observer_dir: np.ndarray | None = None
+    observer_quat: np.ndarray | None = None
+    observer_vel: np.ndarray | None = None
+    observer_angvel: np.ndarray | None = None
+    observer_fall: float | None = None  # m/s along up while falling (walk), else 0
 
     def replace(self, **changes) -> "State":
         return dataclasses.replace(self, **changes)
@@ -41,6 +54,17 @@ def make_state(model: Model) -> State:
     """The state at t = 0. Emitted particles wait at the nozzle with zero velocity."""
     waiting = model.body_emit_step > 0
     vel = np.where(waiting[:, None], 0.0, model.body_vel0)
+    observer = {}
+    if model.observer is not None:
+        ob = model.observer
+        pos, direction = ob.position0.copy(), ob.direction0.copy()
+        quat = look_rotation(direction, ob.up)
+        if model.inputs is not None and model.inputs.frame_pose is not None:
+            pos, quat = model.inputs.frame_pose[0, :3].copy(), model.inputs.frame_pose[0, 3:].copy()
+            direction = quat_rotate(quat, [0.0, 0.0, -1.0])
+        observer = dict(observer_pos=pos, observer_dir=direction, observer_quat=quat,
+                        observer_vel=np.zeros(3), observer_angvel=np.zeros(3),
+                        observer_fall=0.0)
     return State(
         step=0,
         t=0.0,
@@ -48,10 +72,12 @@ def make_state(model: Model) -> State:
         body_vel=np.array(vel, dtype=float),
         body_quat=np.array(model.body_quat0, dtype=float),
         body_angvel=np.zeros((model.n_body, 3)),
+        **observer,
     )
 
 
-STATE_ARRAYS = ("body_pos", "body_vel", "body_quat", "body_angvel")
+STATE_ARRAYS = ("body_pos", "body_vel", "body_quat", "body_angvel", "observer_pos",
+                "observer_dir", "observer_quat", "observer_vel", "observer_angvel", "observer_fall")
 
 
 def state_hash(state: State) -> str:
@@ -61,5 +87,7 @@ def state_hash(state: State) -> str:
     digest.update(np.int64(state.step).astype("<i8").tobytes())
     digest.update(np.float64(state.t).astype("<f8").tobytes())
     for name in STATE_ARRAYS:
+        if getattr(state, name) is None:
+            continue
         digest.update(np.ascontiguousarray(getattr(state, name), dtype="<f8").tobytes())
     return digest.hexdigest()

@@ -71,7 +71,7 @@ def read_trajectory(path: str | Path) -> Trajectory:
 
 
 def _fail(path: Path, line: int, message: str, hint: str | None = None) -> InputError:
-    return InputError([Problem(str(path), line, 1 if line else 0, (), message, hint)])
+    return InputError([Problem(str(path), line, 1 if line else 0, None, message, hint)])
 
 
 def _read_csv(path: Path) -> Trajectory:

@@ -2,7 +2,7 @@
 
 Every writer takes samples one at a time (`write(state)`), then `close()` finalises the
 file atomically, or `abort()` leaves any previous file untouched. The entities of a
-sample are the bodies, in model order (later issues add the observer).
+sample are the bodies, in model order, then the observer.
 """
 
 from __future__ import annotations
@@ -19,13 +19,22 @@ CSV_COLUMNS = ("t", "entity", "px", "py", "pz", "qw", "qx", "qy", "qz",
                "vx", "vy", "vz", "wx", "wy", "wz")
 
 
+OBSERVER = "observer"
+
+
 def entity_names(model: Model) -> tuple:
-    return model.body_name
+    """Bodies in model order, then the observer (when the scene has one)."""
+    return model.body_name + ((OBSERVER,) if model.observer is not None else ())
 
 
 def entity_arrays(model: Model, state: State) -> np.ndarray:
     """(n_entity, 13): px py pz qw qx qy qz vx vy vz wx wy wz, SI units, per entity."""
-    return np.hstack([state.body_pos, state.body_quat, state.body_vel, state.body_angvel])
+    rows = np.hstack([state.body_pos, state.body_quat, state.body_vel, state.body_angvel])
+    if model.observer is None:
+        return rows
+    observer = np.concatenate([state.observer_pos, state.observer_quat, state.observer_vel,
+                               state.observer_angvel])
+    return np.vstack([rows, observer])
 
 
 def open_writer(model: Model, path: Path, fmt: str):

@@ -48,6 +48,10 @@ SCENE_UPDATE = _obj("foxglove.SceneUpdate", {
         "lifetime": DURATION, "frame_locked": {"type": "boolean"},
         "metadata": _array(_obj("foxglove.KeyValuePair",
                                 {"key": {"type": "string"}, "value": {"type": "string"}})),
+        "arrows": _array(_obj("foxglove.ArrowPrimitive", {
+            "pose": POSE, "shaft_length": {"type": "number"},
+            "shaft_diameter": {"type": "number"}, "head_length": {"type": "number"},
+            "head_diameter": {"type": "number"}, "color": COLOR})),
         "spheres": _array(_obj("foxglove.SpherePrimitive", _SIZED)),
         "cubes": _array(_obj("foxglove.CubePrimitive", _SIZED)),
         "cylinders": _array(_obj("foxglove.CylinderPrimitive",
@@ -76,6 +80,21 @@ VRSIM_STATE = {
     "required": ["t", "step", "entities"],
 }
 STATE_COLUMNS = _STATE_COLUMNS
+
+VRSIM_INPUT = {
+    "title": "vrsim.Input",
+    "description": "Sensor values of one frame (loop stage 1): mouse alpha, beta, pitch in "
+                   "[-1, 1], and the head-tracker pose [px, py, pz, qw, qx, qy, qz] when "
+                   "tracked. A later run replays them with input.replay.",
+    "type": "object",
+    "properties": {
+        "t": {"type": "number", "description": "frame start time, s"},
+        "frame": {"type": "integer"},
+        "alpha": {"type": "number"}, "beta": {"type": "number"}, "pitch": {"type": "number"},
+        "pose": {"type": "array", "items": {"type": "number"}, "minItems": 7, "maxItems": 7},
+    },
+    "required": ["t", "frame", "alpha", "beta", "pitch"],
+}
 
 
 def schema_bytes(schema: dict) -> bytes:

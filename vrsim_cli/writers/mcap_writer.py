@@ -4,7 +4,9 @@ Channels (JSON encoding, zstd-compressed chunks):
 - `/tf` (`foxglove.FrameTransforms`): one transform `world` -> entity per entity per sample;
 - `/scene` (`foxglove.SceneUpdate`): one frame-locked entity per body with its shape and
   colour, published at the first sample (planes are drawn as a 20 m square in `world`);
-- `/vrsim/state` (`vrsim.State`): the full state, the same numbers as the CSV columns.
+- `/vrsim/state` (`vrsim.State`): the full state, the same numbers as the CSV columns;
+- `/vrsim/input` (`vrsim.Input`): the sensor values of every frame, when there is an
+  observer, so a later run can replay them (`input.replay`).
 Metadata record `vrsim`: the vrsim version, the scene file's name and text, dt, frame rate
 and integrator, so a trajectory file always says how it was made.
 """
@@ -23,7 +25,7 @@ from vrsim_cli.state import State
 from vrsim_cli.writers import entity_arrays, entity_names
 from vrsim_cli.writers.atomic import AtomicFile
 from vrsim_cli.writers.foxglove_schemas import (FRAME_TRANSFORMS, SCENE_UPDATE, STATE_COLUMNS,
-                                                VRSIM_STATE, schema_bytes)
+                                                VRSIM_INPUT, VRSIM_STATE, schema_bytes)
 
 POINT_MASS_DIAMETER = 0.05  # m, how a body without a shape is drawn
 PLANE_EXTENT = 20.0  # m, side of the square that draws an infinite plane
@@ -32,6 +34,9 @@ MESH_MEDIA_TYPES = {".stl": "model/stl", ".glb": "model/gltf-binary",
                     ".dae": "model/vnd.collada+xml"}
 # Foxglove cylinders stand along their local z; vrsim's along the body's local y.
 Z_TO_Y = [float(c) for c in quat_rotating([0, 0, 1], [0, 1, 0])]
+# Foxglove arrows point along their local +x; the observer looks along its local -z.
+X_TO_MINUS_Z = [float(c) for c in quat_rotating([1, 0, 0], [0, 0, -1])]
+OBSERVER_COLOR = (1.0, 0.85, 0.1, 1.0)
 
 
 def _time(ns: int) -> dict:
@@ -61,9 +66,14 @@ def scene_entity(name: str, shape: dict | None, rgba, ns: int) -> dict:
     entity = {"timestamp": _time(ns), "frame_id": name, "id": name,
               "lifetime": {"sec": 0, "nsec": 0}, "frame_locked": True,
               "metadata": [{"key": "shape", "value": (shape or {}).get("type", "point")}],
-              "spheres": [], "cubes": [], "cylinders": [], "models": []}
+              "arrows": [], "spheres": [], "cubes": [], "cylinders": [], "models": []}
     kind = (shape or {}).get("type")
-    if kind is None:
+    if kind == "observer":  # an arrow along the view direction and a small head
+        entity["arrows"].append({"pose": _pose(q_wxyz=X_TO_MINUS_Z), "shaft_length": 0.3,
+                                 "shaft_diameter": 0.03, "head_length": 0.1,
+                                 "head_diameter": 0.08, "color": color})
+        entity["spheres"].append({"pose": _pose(), "size": _vec([0.15] * 3), "color": color})
+    elif kind is None:
         d = POINT_MASS_DIAMETER
         entity["spheres"].append({"pose": _pose(), "size": _vec([d, d, d]), "color": color})
     elif kind == "sphere":
@@ -114,9 +124,13 @@ class McapWriter:
                                                 schema_bytes(SCENE_UPDATE))
             state = self.writer.register_schema("vrsim.State", "jsonschema",
                                                 schema_bytes(VRSIM_STATE))
+            inputs = self.writer.register_schema("vrsim.Input", "jsonschema",
+                                                 schema_bytes(VRSIM_INPUT))
             self.tf_channel = self.writer.register_channel("/tf", "json", tf)
             self.scene_channel = self.writer.register_channel("/scene", "json", scene)
             self.state_channel = self.writer.register_channel("/vrsim/state", "json", state)
+            self.input_channel = self.writer.register_channel("/vrsim/input", "json", inputs) \
+                if model.observer is not None else None
             self.writer.add_metadata("vrsim", {
                 "version": __version__, "scene_file": Path(model.scene_file).name,
                 "scene": model.scene_text, "dt": repr(model.dt),
@@ -138,8 +152,10 @@ class McapWriter:
         ns = round(state.t * 1e9)
         rows = entity_arrays(self.model, state).tolist()
         if self.samples == 0:
+            shapes = self.model.body_shape + ({"type": "observer"},)
+            colors = self.model.body_color.tolist() + [OBSERVER_COLOR]
             entities = [scene_entity(name, shape, color, ns) for name, shape, color in
-                        zip(self.names, self.model.body_shape, self.model.body_color.tolist())]
+                        zip(self.names, shapes, colors)]
             self._add(self.scene_channel, ns, {"deletions": [], "entities": entities})
         stamp = _time(ns)
         self._add(self.tf_channel, ns, {"transforms": [
@@ -152,6 +168,11 @@ class McapWriter:
                                                          **dict(zip(STATE_COLUMNS, r))}
                                                         for name, r in zip(self.names, rows)]})
         self.samples += 1
+
+    def write_input(self, inputs) -> None:
+        """Record one frame's sensor values on /vrsim/input (replayed by input.replay)."""
+        if self.input_channel is not None:
+            self._add(self.input_channel, round(inputs.t * 1e9), inputs.record())
 
     def close(self) -> None:
         try:

@@ -1,0 +1,283 @@
+"""The observer's and the sensors' part of the model (slide 5.1, loop stage 1).
+
+Layer 2, called by `model.compile_model`. Sensor input is resolved at compile time into one
+row per frame, so reading the sensors in the loop is a lookup and a run is reproducible:
+- `frame_input`  (n_frames, 3): alpha, beta, pitch in [-1, 1] (mouse, per-frame list, CSV
+  file, or a replayed MCAP);
+- `frame_pose`   (n_frames, 7): px py pz qw qx qy qz (head tracker, or a replayed tracker).
+Files named in a scene resolve against its folder and may not leave it.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vrsim_cli.errors import InputError, Problem
+from vrsim_cli.scene import Scene
+from vrsim_cli.spatial import quat_normalize, quat_slerp
+
+# X3D NavigationInfo defaults: avatarSize [0.25, 1.6, 0.75], speed 1 m/s.
+DEFAULT_RADIUS = 0.25  # m, collision radius
+DEFAULT_EYE_HEIGHT = 1.6  # m above the ground
+DEFAULT_STEP_HEIGHT = 0.75  # m, the highest step the walker climbs
+DEFAULT_V_MAX = 1.0  # m/s
+DEFAULT_TURN_DEG = 90.0  # deg/s for gamma_max, delta_max, pitch_max
+DEFAULT_FOV_DEG = 60.0  # vertical field of view
+TRACKER_COLUMNS = ("t", "px", "py", "pz", "qw", "qx", "qy", "qz")
+INPUT_CHANNELS = ("alpha", "beta", "pitch")
+
+
+@dataclass(frozen=True)
+class ObserverModel:
+    """Constants of the observer. Angles in rad, angular rates in rad/s."""
+
+    mode: str  # walk | fly | examine | tracked
+    position0: np.ndarray  # (3,) m, V at t = 0
+    direction0: np.ndarray  # (3,) d at t = 0, as given (its length is kept, slide 5.1)
+    look_at: np.ndarray  # (3,) m, L (examine keeps it fixed)
+    up: np.ndarray  # (3,) unit, the fixed up vector u
+    v_max: float  # m/s
+    gamma_max: float  # rad/s: yaw rate (walk, fly); rotation about x (examine)
+    delta_max: float  # rad/s: rotation about y (examine)
+    pitch_max: float  # rad/s: pitch rate (fly, third input channel)
+    examine_axes: str  # world (the slide's) | view
+    eye_height: float  # m
+    step_height: float  # m
+    radius: float  # m, collision radius
+    walls: str  # slide | stop (slide 5.4.2)
+    fov_deg: float
+
+
+@dataclass(frozen=True)
+class InputModel:
+    source: str  # none | mouse | per_frame | file | tracker | replay
+    frame_input: np.ndarray  # (n_frames, 3) alpha, beta, pitch
+    frame_pose: np.ndarray | None  # (n_frames, 7) tracker poses, or None
+
+
+def compile_observer(scene: Scene, gravity, problems: list[Problem]) -> ObserverModel | None:
+    spec = scene.data.get("observer")
+    if spec is None:
+        return None
+    position = np.array(spec.get("position", [0.0, DEFAULT_EYE_HEIGHT, 0.0]), dtype=float)
+    if "look_at" in spec:
+        look_at = np.array(spec["look_at"], dtype=float)
+        direction = look_at - position
+        if not direction.any():
+            problems.append(scene.problem(("observer", "look_at"), "look_at must differ from "
+                                          "the observer's position"))
+            direction = np.array([0.0, 0.0, -1.0])
+    else:
+        direction = np.array(spec.get("direction", [0.0, 0.0, -1.0]), dtype=float)
+        look_at = position + direction / np.linalg.norm(direction)
+    up = np.array(spec.get("up", [0.0, 1.0, 0.0]), dtype=float)
+    turn = math.radians
+    return ObserverModel(
+        mode=spec.get("mode", "walk"),
+        position0=position,
+        direction0=direction,
+        look_at=look_at,
+        up=up / np.linalg.norm(up),
+        v_max=float(spec.get("v_max", DEFAULT_V_MAX)),
+        gamma_max=turn(float(spec.get("gamma_max", DEFAULT_TURN_DEG))),
+        delta_max=turn(float(spec.get("delta_max", DEFAULT_TURN_DEG))),
+        pitch_max=turn(float(spec.get("pitch_max", DEFAULT_TURN_DEG))),
+        examine_axes=spec.get("examine_axes", "view"),
+        eye_height=float(spec.get("eye_height", DEFAULT_EYE_HEIGHT)),
+        step_height=float(spec.get("step_height", DEFAULT_STEP_HEIGHT)),
+        radius=float(spec.get("radius", DEFAULT_RADIUS)),
+        walls=spec.get("walls", "slide"),
+        fov_deg=float(spec.get("fov_deg", DEFAULT_FOV_DEG)),
+    )
+
+
+def compile_input(scene: Scene, frame_times: np.ndarray, observer: ObserverModel | None,
+                  problems: list[Problem]) -> InputModel:
+    """Resolve the scene's `input` into one row per frame (frame_times: (n_frames,) s)."""
+    spec = scene.data.get("input") or {}
+    n = len(frame_times)
+    zeros = np.zeros((n, 3))
+    linear = spec.get("interpolation", "hold") == "linear"
+    if "mouse" in spec:
+        samples = spec["mouse"]
+        times = np.array([s["t"] for s in samples], dtype=float)
+        values = np.array([[s.get(c, 0.0) for c in INPUT_CHANNELS] for s in samples])
+        return InputModel("mouse", _sample(times, values, frame_times, linear), None)
+    if "per_frame" in spec:
+        rows = spec["per_frame"]
+        values = zeros.copy()
+        count = min(len(rows), n)
+        for i in range(count):
+            values[i, :len(rows[i])] = rows[i]
+        return InputModel("per_frame", values, None)
+    if "file" in spec:
+        path = scene.resolve_path(("input", "file"), problems)
+        if path is None:
+            return InputModel("file", zeros, None)
+        times, values = _read_mouse_csv(scene, path, problems)
+        return InputModel("file", _sample(times, values, frame_times, linear), None)
+    if "tracker" in spec:
+        path = scene.resolve_path(("input", "tracker"), problems)
+        if path is None:
+            return InputModel("tracker", zeros, None)
+        times, poses = _read_tracker_csv(scene, path, problems)
+        return InputModel("tracker", zeros, _sample_poses(times, poses, frame_times, linear))
+    if "replay" in spec:
+        path = scene.resolve_path(("input", "replay"), problems)
+        if path is None:
+            return InputModel("replay", zeros, None)
+        return _read_replay(scene, path, frame_times, observer, problems)
+    return InputModel("none", zeros, None)
+
+
+def _sample(times: np.ndarray, values: np.ndarray, at: np.ndarray, linear: bool) -> np.ndarray:
+    """Sensor values at times `at`: zero before the first sample, the last one after the
+    last; in between held (sample and hold) or linearly interpolated."""
+    out = np.zeros((len(at), values.shape[1]))
+    if len(times) == 0:
+        return out
+    idx = np.searchsorted(times, at, side="right") - 1  # last sample at or before t
+    started = idx >= 0
+    held = values[np.clip(idx, 0, None)]
+    if linear:
+        nxt = np.clip(idx + 1, 0, len(times) - 1)
+        span = times[nxt] - times[np.clip(idx, 0, None)]
+        frac = np.where(span > 0, (at - times[np.clip(idx, 0, None)]) / np.where(span > 0, span,
+                                                                                  1.0), 0.0)
+        held = held + frac[:, None] * (values[nxt] - held)
+    out[started] = held[started]
+    return out
+
+
+def _sample_poses(times: np.ndarray, poses: np.ndarray, at: np.ndarray, linear: bool):
+    """Tracker poses at times `at`: clamped to the first/last pose; held or lerp + slerp."""
+    idx = np.clip(np.searchsorted(times, at, side="right") - 1, 0, len(times) - 1)
+    out = poses[idx].copy()
+    if linear:
+        for k, t in enumerate(at):
+            i = idx[k]
+            if i + 1 < len(times) and t > times[i]:
+                s = min(1.0, (t - times[i]) / (times[i + 1] - times[i]))
+                out[k, :3] = poses[i, :3] + s * (poses[i + 1, :3] - poses[i, :3])
+                out[k, 3:] = quat_slerp(poses[i, 3:], poses[i + 1, 3:], s)
+    return out
+
+
+def _csv_rows(scene: Scene, path: Path, key: tuple, columns: tuple, optional: tuple,
+              problems: list[Problem]):
+    """Rows of a sensor CSV as floats, with its header checked; None when unreadable."""
+    shown = str(path)
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            reader = csv.reader(f)
+            header = next(reader, None)
+            allowed = {columns, columns + optional}
+            if header is None or tuple(h.strip() for h in header) not in allowed:
+                problems.append(Problem(shown, 1, 1, None, "unexpected header", "expected "
+                                        + " or ".join(",".join(c) for c in sorted(allowed))))
+                return None
+            rows = []
+            for line, row in enumerate(reader, start=2):
+                if not row:
+                    continue
+                try:
+                    values = [float(x) for x in row]
+                except ValueError:
+                    problems.append(Problem(shown, line, 1, None, "a column holds something "
+                                            "that is not a number"))
+                    return None
+                if len(values) != len(header) or not all(map(math.isfinite, values)):
+                    problems.append(Problem(shown, line, 1, None, f"expected {len(header)} finite"
+                                            f" numbers, got {','.join(row)}"))
+                    return None
+                rows.append((line, values))
+    except FileNotFoundError:
+        problems.append(scene.problem(key, f"file '{scene.get(key)}' not found",
+                                      f"paths are relative to {scene.base_dir}"))
+        return None
+    except (OSError, UnicodeDecodeError) as exc:
+        problems.append(scene.problem(key, f"cannot read '{scene.get(key)}': "
+                                      f"{getattr(exc, 'strerror', None) or exc}"))
+        return None
+    if not rows:
+        problems.append(Problem(shown, 2, 1, None, "the file holds no samples"))
+        return None
+    for (line, prev), (_, cur) in zip(rows, rows[1:]):
+        if cur[0] <= prev[0]:
+            problems.append(Problem(shown, line + 1, 1, None, f"times must increase strictly: "
+                                    f"{cur[0]} after {prev[0]}"))
+            return None
+    return rows
+
+
+def _read_mouse_csv(scene, path, problems):
+    rows = _csv_rows(scene, path, ("input", "file"), ("t", "alpha", "beta"), ("pitch",),
+                     problems)
+    if rows is None:
+        return np.zeros(0), np.zeros((0, 3))
+    for line, values in rows:
+        if any(abs(v) > 1.0 for v in values[1:]):
+            problems.append(Problem(str(path), line, 1, None, f"alpha, beta and pitch must lie in "
+                                    f"[-1, 1], got {values[1:]}"))
+            return np.zeros(0), np.zeros((0, 3))
+    times = np.array([v[0] for _, v in rows])
+    values = np.zeros((len(rows), 3))
+    for i, (_, v) in enumerate(rows):
+        values[i, :len(v) - 1] = v[1:]
+    return times, values
+
+
+def _read_tracker_csv(scene, path, problems):
+    rows = _csv_rows(scene, path, ("input", "tracker"), TRACKER_COLUMNS, (), problems)
+    if rows is None:
+        return np.zeros(1), np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]])
+    for line, values in rows:
+        if not any(values[4:8]):
+            problems.append(Problem(str(path), line, 1, None, "the quaternion is zero"))
+    data = np.array([v for _, v in rows])
+    poses = data[:, 1:].copy()
+    poses[:, 3:] = quat_normalize(poses[:, 3:])
+    return data[:, 0], poses
+
+
+def _read_replay(scene, path, frame_times, observer, problems) -> InputModel:
+    """Sensor values recorded on `/vrsim/input` by an earlier run, re-sampled (held) at this
+    run's frame times."""
+    zeros = np.zeros((len(frame_times), 3))
+    try:
+        from mcap.reader import make_reader
+
+        with open(path, "rb") as f:
+            times, values, poses = [], [], []
+            for _s, _c, message in make_reader(f).iter_messages(topics=["/vrsim/input"]):
+                sample = json.loads(message.data)
+                times.append(float(sample["t"]))
+                values.append([float(sample.get(c, 0.0)) for c in INPUT_CHANNELS])
+                if "pose" in sample:
+                    poses.append([float(x) for x in sample["pose"]])
+    except FileNotFoundError:
+        problems.append(scene.problem(("input", "replay"), f"file '{scene.get(('input', 'replay'))}"
+                                      f"' not found", f"paths are relative to {scene.base_dir}"))
+        return InputModel("replay", zeros, None)
+    except Exception as exc:  # the mcap library raises many types for corrupt files
+        problems.append(scene.problem(("input", "replay"), f"cannot read recorded input: "
+                                      f"{type(exc).__name__}: {exc}"))
+        return InputModel("replay", zeros, None)
+    if not times:
+        problems.append(scene.problem(("input", "replay"), "the file has no /vrsim/input "
+                                      "messages", "record one with vrsim run ... -o FILE.mcap"))
+        return InputModel("replay", zeros, None)
+    times_a = np.array(times)
+    if poses:
+        if observer is not None and observer.mode != "tracked":
+            problems.append(scene.problem(("observer", "mode"), "the replayed input holds "
+                                          "tracker poses", "use mode: tracked"))
+        return InputModel("replay", zeros, _sample_poses(times_a, np.array(poses), frame_times,
+                                                         False))
+    return InputModel("replay", _sample(times_a, np.array(values), frame_times, False), None)
