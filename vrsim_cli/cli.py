@@ -359,6 +359,44 @@ def walk_table_command(scene_file, fmt, exact, v_max, gamma_max, dt, position, d
     click.echo(format_table(walk_table(scene), fmt, exact), nl=False)
 
 
+@cli.command()
+@click.option("--quick", is_flag=True, help="Fewer step sizes and repeats (under a minute).")
+@click.option("--peers", is_flag=True, help="Also run MuJoCo and PyBullet when installed "
+              "(pip install 'vrsim-cli[bench]').")
+@click.option("--problem", "names", multiple=True, help="Run only this problem (repeatable).")
+@click.option("--repeats", type=click.IntRange(min=1), help="Timed repeats per run (best of).")
+@click.option("-o", "--output", "folder", type=click.Path(file_okay=False), default="bench",
+              show_default=True, help="Folder for bench.md, bench.json and the plots.")
+@_reports_errors
+def bench(quick, peers, names, repeats, folder):
+    """Work-precision benchmark: wall time together with error, against MuJoCo/PyBullet."""
+    from vrsim_cli import bench as bench_module
+    from vrsim_cli.writers.atomic import AtomicFile
+
+    known = bench_module.problems()
+    for name in names:
+        if name not in known:
+            raise click.BadParameter(f"unknown problem '{name}' (known: {', '.join(known)})",
+                                     param_hint="--problem")
+    points = bench_module.run_bench(list(names) or None, quick=quick, peers=peers,
+                                    repeats=repeats)
+    reps = repeats or (2 if quick else 5)
+    note = (f"one warm-up run, then the best of {reps} timed runs; only the stepping is "
+            f"timed (model building and output are not)")
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    report = bench_module.markdown(points, note)
+    for name, text in (("bench.md", report), ("bench.json", bench_module.to_json(points))):
+        target = AtomicFile(out / name)
+        target.write(text.encode())
+        target.commit()
+    plots = bench_module.plot(points, out)
+    click.echo(report)
+    click.echo(f"wrote {out / 'bench.md'}, {out / 'bench.json'}"
+               + (f" and {len(plots)} plot(s)" if plots else
+                  " (no plots: pip install 'vrsim-cli[bench]' for matplotlib)"))
+
+
 def main() -> None:
     cli(prog_name="vrsim")
 

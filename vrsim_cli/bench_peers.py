@@ -1,0 +1,92 @@
+"""The peers of `vrsim bench`: the same problems in MuJoCo and PyBullet, set up as a careful
+user would.
+
+MuJoCo: one body on a free joint, gravity as in the problem, contacts off for a
+projectile; integrators Euler (semi-implicit for free bodies), implicitfast and RK4; the
+stepping is one `mj_step(model, data, nstep=N)` call, so Python adds nothing per step.
+PyBullet: DIRECT mode, one multibody, linear and angular damping set to 0 (Bullet's
+default 0.04 would dominate the error), fixed time step, no sub-steps.
+Both are optional (`pip install 'vrsim-cli[bench]'`) and imported only here.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+
+MUJOCO_INTEGRATORS = ("Euler", "implicitfast", "RK4")
+
+
+def available(engine: str) -> bool:
+    return importlib.util.find_spec(engine) is not None
+
+
+def mujoco_projectile(dts, repeats):
+    import mujoco
+
+    from vrsim_cli.bench import PROJECTILE, Point, best_time, projectile_truth
+
+    p = PROJECTILE
+    points = []
+    for integrator in MUJOCO_INTEGRATORS:
+        for dt in dts:
+            xml = f"""<mujoco><option timestep="{dt!r}" integrator="{integrator}"
+                gravity="{' '.join(map(repr, p['g']))}"/>
+                <worldbody><body pos="{' '.join(map(repr, p['x0']))}"><freejoint/>
+                <geom type="sphere" size="0.05" mass="{p['mass']!r}" contype="0"
+                conaffinity="0"/></body></worldbody></mujoco>"""
+            model = mujoco.MjModel.from_xml_string(xml)
+            data = mujoco.MjData(model)
+            steps = round(p["duration"] / dt)
+
+            def go():
+                mujoco.mj_resetData(model, data)
+                data.qvel[:3] = p["v0"]
+                mujoco.mj_step(model, data, nstep=steps)
+                return data.qpos[:3].copy()
+
+            wall, pos = best_time(go, repeats)
+            error = float(np.linalg.norm(pos - projectile_truth(steps * dt)))
+            points.append(Point("projectile", "mujoco", integrator, dt, wall, error, steps))
+    return points
+
+
+def pybullet_projectile(dts, repeats):
+    import pybullet
+
+    from vrsim_cli.bench import PROJECTILE, Point, best_time, projectile_truth
+
+    p = PROJECTILE
+    points = []
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        for dt in dts:
+            pybullet.resetSimulation(physicsClientId=client)
+            pybullet.setGravity(*p["g"], physicsClientId=client)
+            pybullet.setTimeStep(dt, physicsClientId=client)
+            pybullet.setPhysicsEngineParameter(numSubSteps=0, physicsClientId=client)
+            shape = pybullet.createCollisionShape(pybullet.GEOM_SPHERE, radius=0.05,
+                                                  physicsClientId=client)
+            body = pybullet.createMultiBody(p["mass"], shape, basePosition=p["x0"],
+                                            physicsClientId=client)
+            pybullet.changeDynamics(body, -1, linearDamping=0.0, angularDamping=0.0,
+                                    physicsClientId=client)
+            steps = round(p["duration"] / dt)
+
+            def go():
+                pybullet.resetBasePositionAndOrientation(body, p["x0"], (0, 0, 0, 1),
+                                                         physicsClientId=client)
+                pybullet.resetBaseVelocity(body, p["v0"], (0, 0, 0), physicsClientId=client)
+                for _ in range(steps):
+                    pybullet.stepSimulation(physicsClientId=client)
+                return np.array(pybullet.getBasePositionAndOrientation(
+                    body, physicsClientId=client)[0])
+
+            wall, pos = best_time(go, repeats)
+            error = float(np.linalg.norm(pos - projectile_truth(steps * dt)))
+            points.append(Point("projectile", "pybullet", "semi-implicit Euler", dt, wall,
+                                error, steps))
+    finally:
+        pybullet.disconnect(client)
+    return points
