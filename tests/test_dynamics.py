@@ -215,3 +215,20 @@ def test_check_state_catches_nan_and_runaways():
         with pytest.raises(SimulationError, match=word) as info:
             check_state(model, state.replace(**{field: arr}))
         assert info.value.body == "b"
+
+
+@pytest.mark.parametrize("integrator", ["euler", "symplectic-euler", "rk4"])
+def test_force_window_is_sampled_at_step_starts_for_every_integrator(integrator):
+    # 1 N on 1 kg from 0 to 0.005 s at dt = 1 ms: exactly five steps, impulse 0.005 N s,
+    # also for rk4 whose later stages lie past the window's end.
+    scene = parse_scene(f"""
+vrsim: 1
+duration: 0.01
+frame_rate: 1000
+dt: 0.001
+integrator: {integrator}
+gravity: [0, 0, 0]
+bodies: [{{name: p, mass: 1, forces: [{{force: [1, 0, 0], start: 0, end: 0.005}}]}}]
+""")
+    model = compile_model(scene)
+    assert run(model, make_state(model)).state.body_vel[0, 0] == pytest.approx(0.005, abs=1e-15)

@@ -24,15 +24,22 @@ def moving_mask(model: Model, step: int) -> np.ndarray:
     return moving.astype(float)[:, None]
 
 
-def accelerations(model: Model, t: float, mask: np.ndarray) -> np.ndarray:
-    """(n_body, 3) m/s^2 from gravity and the forces acting at time t."""
+def active_forces(model: Model, t: float) -> np.ndarray:
+    """(n_force,) bool: the forces acting during the step that starts at time t.
+
+    A force window is sampled once per step, at its start, for every integrator: within a
+    step the force is constant, so a window [start, end) acts on exactly the steps whose
+    start time lies in it, also for the intermediate stages of rk4."""
+    return (model.force_start <= t) & (t < model.force_end)
+
+
+def accelerations(model: Model, active: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(n_body, 3) m/s^2 from gravity and the active forces."""
     acc = mask * model.gravity
-    if len(model.force_body):
-        active = (model.force_start <= t) & (t < model.force_end)
-        if active.any():
-            body = model.force_body[active]
-            np.add.at(acc, body, model.force_vec[active] * model.body_inv_mass[body, None]
-                      * mask[body])
+    if active.any():
+        body = model.force_body[active]
+        np.add.at(acc, body, model.force_vec[active] * model.body_inv_mass[body, None]
+                  * mask[body])
     return acc
 
 
@@ -49,9 +56,10 @@ def step(model: Model, state: State) -> State:
     """Advance every body by one physics step dt. Pure: returns a new State."""
     integrate = INTEGRATORS[model.integrator]
     mask = moving_mask(model, state.step)
+    acc = accelerations(model, active_forces(model, state.t), mask)
 
-    def accel(t, x, v):
-        return accelerations(model, t, mask)
+    def accel(t, x, v):  # forces depend neither on x nor v yet, nor on t within a step
+        return acc
 
     pos, vel = integrate(accel, state.t, model.dt, state.body_pos, state.body_vel)
     n = state.step + 1
