@@ -9,6 +9,7 @@ import pytest
 
 from conftest import SCENARIOS
 from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.writers import tum_writer
 from vrsim_cli.writers.atomic import AtomicFile
 
 BALL = """
@@ -88,7 +89,7 @@ def test_bad_scene_exits_2_with_located_errors(invoke, write_scene):
     assert result.exit_code == 2
     assert result.stderr == (f"error: {path}:3:29: bodies[0].restitutoin: unknown key "
                              f"'restitutoin' (allowed here: name, type, shape, mass, position, "
-                             f"velocity, orientation, euler_deg, angle_deg, color, forces)\n")
+                             f"velocity, orientation, euler_deg, angle_deg, color, material, forces)\n")
     assert "Traceback" not in result.output
 
 
@@ -138,6 +139,12 @@ class _SmallDisk:
     def __getattr__(self, name):
         return getattr(self._file, name)
 
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._file.close()
+
 
 @pytest.mark.parametrize("name", ["o.csv", "o.mcap", "o.tum"])
 def test_disk_full_leaves_the_previous_output_untouched(invoke, write_scene, tmp_path,
@@ -155,7 +162,11 @@ def test_disk_full_leaves_the_previous_output_untouched(invoke, write_scene, tmp
         real_init(self, path)
         self.file = _SmallDisk(self.file, room=300)
 
+    def small_disk_open(*args, **kwargs):  # TUM writes its folder with plain open()
+        return _SmallDisk(open(*args, **kwargs), room=30)
+
     monkeypatch.setattr(AtomicFile, "__init__", small_disk_init)
+    monkeypatch.setattr(tum_writer, "open", small_disk_open, raising=False)
     result = invoke("run", write_scene(BALL), "-o", out, *args)
     assert result.exit_code == 1
     assert "No space left on device" in result.stderr and "Traceback" not in result.output
@@ -257,3 +268,68 @@ def test_progress_bar_on_a_terminal_for_long_runs(write_scene, monkeypatch):
     quiet = cli_module._Progress(model, enabled=False)
     quiet(state)
     assert terminal.getvalue().count("%") == 1
+
+
+def test_tum_output_replaces_the_whole_folder(invoke, write_scene, tmp_path):
+    out = tmp_path / "tum"
+    out.mkdir()
+    (out / "stale.tum").write_text("0 0 0 0 0 0 0 1\n")
+    assert invoke("run", write_scene(BALL), "-o", out, "--format", "tum").exit_code == 0
+    assert sorted(p.name for p in out.iterdir()) == ["ball.tum"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml", "tum"]
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--duration", "nan"], "'nan' is not a finite number"),
+    (["--duration", "inf"], "'inf' is not a finite number"),
+    (["--dt", "1e-300"], "dt: must be >= 1e-09"),
+    (["--duration", "1e300"], "duration: must be <= 1000000"),
+    (["--duration", "1e-300"], "is shorter than one physics step"),
+])
+def test_extreme_option_values_are_input_errors(invoke, write_scene, args, message):
+    result = invoke("run", write_scene(BALL), *args)
+    assert result.exit_code == 2 and message in result.stderr, result.stderr
+    assert "Traceback" not in result.output
+
+
+def test_output_may_not_overwrite_the_scene(invoke, write_scene, tmp_path):
+    scene = write_scene(BALL)
+    result = invoke("run", scene, "-o", scene, "--format", "csv")
+    assert result.exit_code == 2 and "would overwrite the scene file" in result.stderr
+    assert invoke("run", scene, "-o", scene, "--format", "tum").exit_code == 2
+
+
+ISSUE_EXAMPLE = """
+vrsim: 1                 # format version
+name: bouncing-ball
+dimension: 3             # 2 or 3
+duration: 4.0            # s
+frame_rate: 90           # Hz
+dt: 0.001                # s
+integrator: symplectic-euler
+gravity: [0, -9.81, 0]   # m/s^2
+observer: {mode: walk, position: [0, 1.6, 0], direction: [0, 0, 1], v_max: 2.0, gamma_max: 100}
+input:
+  mouse: [{t: 0.0, alpha: 0.5, beta: 0.0}, {t: 1.0, alpha: 0.0, beta: -1.0}]
+bodies:
+  - name: ball
+    type: dynamic
+    shape: {type: sphere, radius: 0.1}
+    mass: 1.0
+    position: [0, 1.1, 0]
+    velocity: [0, 0, 0]
+    orientation: [1, 0, 0, 0]
+    material: {restitution: 0.8, friction: 0.5}
+    color: [0.9, 0.2, 0.2]
+output: {file: ball.mcap, rate: 90}
+"""
+
+
+def test_the_foundation_issues_example_scene_runs_and_says_what_is_unused(invoke, write_scene,
+                                                                          tmp_path):
+    result = invoke("run", write_scene(ISSUE_EXAMPLE))
+    assert result.exit_code == 0, result.stderr
+    assert "note: material (restitution, friction) of 1 body(ies), first bodies[0], has no " \
+           "effect yet" in result.stderr
+    assert "dt = 0.001 s does not divide the frame interval 1/90 s" in result.stderr
+    assert set(read_trajectory(tmp_path / "ball.mcap").tracks) == {"ball", "observer"}

@@ -11,6 +11,7 @@ import pytest
 from conftest import SCENARIOS
 from vrsim_cli.loop import run
 from vrsim_cli.model import compile_model
+from vrsim_cli.model_observer import input_at
 from vrsim_cli.scene import load_scene, parse_scene
 from vrsim_cli.spatial import quat_rotate
 from vrsim_cli.state import make_state
@@ -79,6 +80,16 @@ def test_walk_table_parameters_and_formats(invoke):
         "1.00,0.00,10.0,0.0,0,10.0,0.0,1.0,0.0"]
     bad = invoke("walk-table", "--alpha", "1.5")
     assert bad.exit_code == 2 and "values must lie in [-1, 1]" in bad.stderr
+    for args in (["--v-max", "nan"], ["--dt", "20"], ["--alpha", ""], ["--direction", "0", "0"]):
+        result = invoke("walk-table", *args)
+        assert result.exit_code == 2 and "Invalid value" in result.stderr, args
+
+
+def test_walk_table_velocity_is_the_steps_velocity_not_a_difference_quotient(invoke):
+    # v = alpha * v_max * d_hat = -0.97 * 200 = -194 exactly; (V_new - V) / dt would give
+    # -193.99999999999977, which truncates to -193.
+    result = invoke("walk-table", "--alpha", "-0.97", "--beta", "0", "--direction", "1", "0")
+    assert "| -0.97 | 0.00 | (-194,0) | 0 | (280,300) | (1,0) |" in result.stdout
 
 
 WALK = """
@@ -292,8 +303,11 @@ observer: {mode: walk, v_max: 1}
 input: {mouse: [{t: 0.25, alpha: 0.2, beta: 0}, {t: 0.75, alpha: 0.6, beta: 0}],
         interpolation: INTERP}
 """
-    hold = compile_model(parse_scene(text.replace("INTERP", "hold"))).inputs.frame_input[:, 0]
-    lin = compile_model(parse_scene(text.replace("INTERP", "linear"))).inputs.frame_input[:, 0]
+    def alphas(interp):
+        inputs = compile_model(parse_scene(text.replace("INTERP", interp))).inputs
+        return [input_at(inputs, k, k * 0.25)[0][0] for k in range(4)]
+
+    hold, lin = np.array(alphas("hold")), np.array(alphas("linear"))
     assert hold.tolist() == [0.0, 0.2, 0.2, 0.6]
     assert lin.tolist() == pytest.approx([0.0, 0.2, 0.4, 0.6])
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 import pytest
 
 from vrsim_cli.errors import InputError
@@ -137,7 +138,58 @@ def test_non_finite_numbers(write_scene, value):
 
 def test_duplicate_key(write_scene):
     out = problems(write_scene, "vrsim: 1\nduration: 1\nduration: 2\n")
-    assert out == ["F:3:1: duration: duplicate key 'duration' (first at line 2)"]
+    assert out == ["F:3:1: duplicate key 'duration' (first at line 2)"]
+
+
+def test_merge_keys_are_not_duplicates(write_scene):
+    scene = load_scene(write_scene("""
+        vrsim: 1
+        duration: 1
+        bodies:
+          - &ball {name: a, mass: 1, position: [0, 1, 0]}
+          - <<: *ball
+            name: b
+        """))
+    assert [b["name"] for b in scene.data["bodies"]] == ["a", "b"]
+    assert scene.data["bodies"][1]["position"] == [0, 1, 0]
+
+
+@pytest.mark.parametrize("text,message", [
+    ("output: {file: ''}", "F:3:16: output.file: must not be empty"),
+    ("name: " + "x" * 201, "F:3:7: name: is longer than 200 characters"),
+])
+def test_string_length_limits(write_scene, text, message):
+    assert problems(write_scene, f"vrsim: 1\nduration: 1\n{text}\n") == [message]
+
+
+def test_too_many_particles(write_scene):
+    out = problems(write_scene, """
+        vrsim: 1
+        duration: 1
+        emitters:
+          - {name: a, count: 100000, rate: 10, speed: 1, mass: 1}
+          - {name: b, count: 100000, rate: 10, speed: 1, mass: 1}
+          - {name: c, count: 100000, rate: 10, speed: 1, mass: 1}
+          - {name: d, count: 100000, rate: 10, speed: 1, mass: 1}
+          - {name: e, count: 100000, rate: 10, speed: 1, mass: 1}
+          - {name: f, count: 100000, rate: 10, speed: 1, mass: 1}
+          - {name: g, count: 100000, rate: 10, speed: 1, mass: 1}
+          - {name: h, count: 100000, rate: 10, speed: 1, mass: 1}
+          - {name: i, count: 100000, rate: 10, speed: 1, mass: 1}
+          - {name: j, count: 100000, rate: 10, speed: 1, mass: 1}
+          - {name: k, count: 100000, rate: 10, speed: 1, mass: 1}
+        """)
+    assert out == ["F:3:1: emitters: the scene has 1100000 bodies and particles; at most "
+                   "1000000 are allowed"]
+
+
+@pytest.mark.parametrize("vector", ["[1.0e-320, 0, 0, 0]", "[1.0e300, 1.0e300, 0, 0]"])
+def test_tiny_and_huge_quaternions_normalise(write_scene, vector):
+    from vrsim_cli.model import compile_model
+    model = compile_model(load_scene(write_scene(
+        f"vrsim: 1\nduration: 1\nbodies: [{{name: a, mass: 1, orientation: {vector}}}]\n")))
+    assert np.isfinite(model.body_quat0).all()
+    assert np.linalg.norm(model.body_quat0[0]) == pytest.approx(1.0, abs=1e-15)
 
 
 def test_non_string_key(write_scene):
@@ -302,7 +354,7 @@ def test_output_rate_must_fit_the_step(write_scene):
         output: {rate: 30}
         """)
     assert out == ["F:5:16: output.rate: 1/rate = 0.0333333 s is not a whole number of physics "
-                   "steps (dt = 0.01 s) (rates that fit: 100, 50, 33.3333, 25, 20 Hz)"]
+                   "steps (dt = 0.01 s) (nearest rates that fit: 33.3333, 25, 50, 100 Hz)"]
 
 
 def test_missing_mesh_file(write_scene):

@@ -61,6 +61,10 @@ def test_csv_has_exactly_the_documented_columns_and_exact_values(write_scene, tm
     assert crate_q == pytest.approx([np.sqrt(0.5), 0, np.sqrt(0.5), 0])
 
 
+def _reject(constant):
+    raise AssertionError(f"non-JSON number {constant} in a message")
+
+
 def test_mcap_reads_back_with_foxglove_schemas(write_scene, tmp_path):
     model, result = run_to(write_scene, tmp_path, "out.mcap", "mcap")
     with open(tmp_path / "out.mcap", "rb") as f:
@@ -78,8 +82,9 @@ def test_mcap_reads_back_with_foxglove_schemas(write_scene, tmp_path):
         assert all(ci.compression == "zstd" for ci in summary.chunk_indexes)
         messages = {}
         for schema, channel, message in reader.iter_messages():
-            messages.setdefault(channel.topic, []).append((message.log_time,
-                                                           json.loads(message.data)))
+            # strict JSON: NaN or Infinity would make the file unreadable for Foxglove
+            decoded = json.loads(message.data, parse_constant=_reject)
+            messages.setdefault(channel.topic, []).append((message.log_time, decoded))
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
     assert len(messages["/tf"]) == len(messages["/vrsim/state"]) == 11
     assert len(messages["/scene"]) == 1

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import signal
 import sys
 import threading
@@ -43,8 +44,36 @@ def _reports_errors(command):
         except VrsimError as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(exc.exit_code)
+        except KeyboardInterrupt:  # Ctrl-C outside the loop: nothing was written yet
+            click.echo("interrupted", err=True)
+            sys.exit(128 + signal.SIGINT)
 
     return wrapper
+
+
+class _Finite(click.ParamType):
+    """A finite number within optional bounds (click's FloatRange lets nan and inf in)."""
+
+    name = "number"
+
+    def __init__(self, low=None, high=None, low_open=False):
+        self.low, self.high, self.low_open = low, high, low_open
+
+    def convert(self, value, param, ctx):
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number", param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        if self.low is not None and (number < self.low or (self.low_open and number == self.low)):
+            self.fail(f"{value} must be {'>' if self.low_open else '>='} {self.low:g}", param, ctx)
+        if self.high is not None and number > self.high:
+            self.fail(f"{value} must be <= {self.high:g}", param, ctx)
+        return number
+
+
+POSITIVE = _Finite(low=0.0, low_open=True)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -130,6 +159,8 @@ def _output_target(output: str | None, fmt: str | None):
         raise click.UsageError(f"folder '{path.parent}' does not exist")
     if fmt != "tum" and path.is_dir():
         raise click.UsageError(f"'{output}' is a folder; give a file name")
+    if fmt == "tum" and path.exists() and not path.is_dir():
+        raise click.UsageError(f"'{output}' is a file; --format tum writes a folder")
     return path, fmt
 
 
@@ -139,10 +170,8 @@ def _output_target(output: str | None, fmt: str | None):
               "folder with --format tum. Overrides the scene's output.file.")
 @click.option("--format", "fmt", type=click.Choice(OUTPUT_FORMATS), help="Output format "
               "(default: from the suffix).")
-@click.option("--duration", type=click.FloatRange(min=0, min_open=True), help="Simulated "
-              "time in s (overrides the scene).")
-@click.option("--dt", type=click.FloatRange(min=0, min_open=True), help="Largest physics "
-              "step in s (overrides the scene).")
+@click.option("--duration", type=POSITIVE, help="Simulated time in s (overrides the scene).")
+@click.option("--dt", type=POSITIVE, help="Largest physics step in s (overrides the scene).")
 @click.option("--integrator", type=click.Choice(INTEGRATORS), help="Integrator (overrides "
               "the scene).")
 @click.option("--realtime", is_flag=True, help="Pace the loop to the wall clock and report "
@@ -159,11 +188,15 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     from vrsim_cli.writers import open_writer
 
     target = _output_target(output, fmt)
+    if target is not None and target[0].resolve() == Path(scene_file).resolve():
+        raise click.UsageError("the output would overwrite the scene file")
     scene = load_scene(scene_file).with_overrides({
         ("duration",): (duration, "--duration"), ("dt",): (dt, "--dt"),
         ("integrator",): (integrator, "--integrator")})
     model = compile_model(scene, output_override=target)
     say = (lambda *a, **k: None) if quiet else click.echo
+    for note in model.notes:
+        say(f"note: {note}", err=True)
     if model.dt != model.dt_requested:
         say(f"note: dt = {model.dt_requested:g} s does not divide the frame interval "
             f"1/{model.frame_rate:g} s; using dt = {model.dt:.6g} s "
@@ -187,19 +220,19 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
             raise
         finally:
             progress.clear()
-    if writer is not None:
-        try:
-            writer.close()
-        except VrsimError:
-            writer.abort()
-            raise
+        if writer is not None:  # still under the handlers: a signal now cannot cut it off
+            try:
+                writer.close()
+            except VrsimError:
+                writer.abort()
+                raise
     if failure is not None:
         kept = f"; output up to the last good state kept in {model.output.path}" \
             if writer is not None else ""
         click.echo(f"error: {failure}{kept}", err=True)
         sys.exit(failure.exit_code)
     _summary(model, result, say, profile, realtime)
-    if result.interrupted:
+    if signals.received is not None:  # during the loop, or while the output was finalised
         name = signal.Signals(signals.received).name
         click.echo(f"interrupted by {name} at t = {result.state.t:.6g} s; output finalised",
                    err=True)
@@ -250,6 +283,8 @@ def validate(scene_files, quiet):
         if not quiet:
             click.echo(f"{file}: ok ({model.n_body} bodies, {model.duration:g} s in "
                        f"{model.n_steps} steps of {model.dt:.6g} s, {model.integrator})")
+            for note in model.notes:
+                click.echo(f"note: {file}: {note}", err=True)
     sys.exit(EXIT_INPUT if failed else 0)
 
 
@@ -315,9 +350,12 @@ class _Numbers(click.ParamType):
         if isinstance(value, tuple):
             return value
         try:
-            return tuple(float(x) for x in str(value).split(",") if x.strip())
+            numbers = tuple(float(x) for x in str(value).split(",") if x.strip())
         except ValueError:
             self.fail(f"expected comma-separated numbers, got {value!r}", param, ctx)
+        if not numbers:
+            self.fail("give at least one number", param, ctx)
+        return numbers
 
 
 @cli.command("walk-table")
@@ -326,14 +364,17 @@ class _Numbers(click.ParamType):
 @click.option("--format", "fmt", type=click.Choice(["markdown", "csv"]), default="markdown",
               show_default=True)
 @click.option("--exact", is_flag=True, help="Full precision instead of truncation toward zero.")
-@click.option("--v-max", type=float, default=200.0, show_default=True, help="m/s")
-@click.option("--gamma-max", type=float, default=100.0, show_default=True, help="deg/s")
-@click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=0.1,
-              show_default=True, help="Frame interval in s.")
-@click.option("--position", nargs=2, type=float, default=(300.0, 300.0), show_default=True,
-              metavar="Z X", help="Start position V in the slide's (z, x) coordinates.")
-@click.option("--direction", nargs=2, type=float, default=(100.0, 100.0), show_default=True,
-              metavar="Z X", help="Start direction d in (z, x); not normalised.")
+@click.option("--v-max", type=_Finite(low=0.0), default=200.0, show_default=True, help="m/s")
+@click.option("--gamma-max", type=_Finite(low=0.0), default=100.0, show_default=True,
+              help="deg/s")
+@click.option("--dt", type=_Finite(low=1e-6, high=10.0), default=0.1, show_default=True,
+              help="Frame interval in s.")
+@click.option("--position", nargs=2, type=_Finite(), default=(300.0, 300.0),
+              show_default=True, metavar="Z X", help="Start position V in the slide's (z, x) "
+              "coordinates.")
+@click.option("--direction", nargs=2, type=_Finite(), default=(100.0, 100.0),
+              show_default=True, metavar="Z X", help="Start direction d in (z, x); not "
+              "normalised.")
 @click.option("--alpha", type=_Numbers(), help="Alpha per frame, comma-separated "
               "(default: the slide's -1,-0.99,...,0).")
 @click.option("--beta", type=_Numbers(), help="Beta per frame (default: equal to alpha, as on "
@@ -346,8 +387,13 @@ def walk_table_command(scene_file, fmt, exact, v_max, gamma_max, dt, position, d
     from vrsim_cli.walk_table import SLIDE_ALPHAS, format_table, slide_scene_text, walk_table
 
     for name, values in (("--alpha", alpha), ("--beta", beta)):
-        if values is not None and any(abs(v) > 1.0 for v in values):
+        if values is not None and not all(abs(v) <= 1.0 for v in values):
             raise click.BadParameter("values must lie in [-1, 1]", param_hint=name)
+    if not any(direction):
+        raise click.BadParameter("the direction must not be zero", param_hint="--direction")
+    if alpha is not None and beta is not None and len(alpha) != len(beta):
+        raise click.BadParameter(f"{len(alpha)} alpha values but {len(beta)} beta values",
+                                 param_hint="--beta")
     if scene_file is not None:
         scene = load_scene(scene_file)
     else:

@@ -95,6 +95,17 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
             result.samples += 1
             last_written = s.step
 
+    def observer_at(s: State, steps_done: int) -> State:
+        """s with the observer moved `steps_done` steps into the current frame."""
+        if frame_end is frame_start:
+            return s
+        t0 = clock()
+        s = navigation.within_frame(model, s, frame_start, frame_end,
+                                    steps_done / model.steps_per_frame)
+        profile["navigation"] += clock() - t0
+        return s
+
+    frame_start = frame_end = state
     sample(state)
     start = clock()
     # Overflow and NaN are detected by check_state, which names the body and time;
@@ -122,17 +133,14 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
                 new = dynamics.step(model, state)  # 2.1 dynamic motion
                 t1 = clock()
                 check_state(model, new)
-                t2 = clock()
                 profile["dynamics"] += t1 - t0
-                profile["checks"] += t2 - t1
-                if inputs is not None:
-                    new = navigation.within_frame(model, new, frame_start, frame_end,
-                                                  (k + 1) / model.steps_per_frame)
-                    profile["navigation"] += clock() - t2
+                profile["checks"] += clock() - t1
                 state = new
                 result.state = state
-                if state.step % every == 0:
-                    sample(state)
+                if state.step % every == 0:  # the observer only where a sample needs it
+                    sample(observer_at(state, k + 1))
+            if inputs is not None:  # the frame's end (or a run's last, partial frame)
+                state = result.state = observer_at(state, steps)
             result.frames += 1
             # 3. scene graph and render: nothing to draw until those stages exist.
             if realtime:

@@ -23,7 +23,7 @@ from vrsim_cli.geometry import ANALYTIC
 from vrsim_cli.model_observer import InputModel, ObserverModel, compile_input, compile_observer
 from vrsim_cli.scene import Scene
 from vrsim_cli.spatial import (IDENTITY_QUAT, quat_from_axis_angle, quat_from_euler_deg,
-                               quat_normalize, quat_rotating)
+                               quat_normalize, quat_rotating, unit)
 
 BODY_DYNAMIC, BODY_KINEMATIC, BODY_STATIC = 0, 1, 2
 BODY_TYPES = {"dynamic": BODY_DYNAMIC, "kinematic": BODY_KINEMATIC, "static": BODY_STATIC}
@@ -92,6 +92,7 @@ class Model:
     observer: ObserverModel | None = None  # None: the scene has no observer
     inputs: InputModel | None = None  # sensor values per frame (loop stage 1)
     observer_obstacles: tuple = ()  # body indices the observer collides with and walks on
+    notes: tuple = ()  # things the user should know about this run (printed, not errors)
 
     @property
     def n_body(self) -> int:
@@ -141,25 +142,26 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         dt = dt_requested
     duration = float(data["duration"])
     ratio = duration / dt
+    if not ratio <= MAX_STEPS:  # also catches inf and nan from extreme values
+        raise InputError([scene.problem(("duration",), f"the run would take {ratio:.3g} steps "
+                                        f"(more than {MAX_STEPS:.0e})", "use a larger dt or a "
+                                        "shorter duration")])
+    if ratio < 1.0 - 1e-9:
+        raise InputError([scene.problem(("duration",), f"{duration:g} s is shorter than one "
+                                        f"physics step ({dt:.6g} s)")])
     n_steps = round(ratio) if abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio) else \
         math.ceil(ratio)
-    n_steps = max(n_steps, 1)
-    if n_steps > MAX_STEPS:
-        problems.append(scene.problem(("duration",), f"the run would take {n_steps:.3g} steps "
-                                      f"(more than {MAX_STEPS:.0e})", "use a larger dt or a "
-                                      "shorter duration"))
 
     # --- output
     out = data.get("output") or {}
     rate = float(out.get("rate", frame_rate))
     every = (1.0 / rate) / dt
-    every_steps = round(every)
+    every_steps = round(every) if every <= MAX_STEPS else 0
     if every_steps < 1 or abs(every - every_steps) > 1e-6 * every:
-        fits = sorted({round(1.0 / (dt * k), 6) for k in range(1, 6)}, reverse=True)
         problems.append(scene.problem(
             ("output", "rate"), f"1/rate = {1.0 / rate:.6g} s is not a whole number of physics "
-            f"steps (dt = {dt:.6g} s)", "rates that fit: " + ", ".join(f"{r:g}" for r in fits)
-            + " Hz"))
+            f"steps (dt = {dt:.6g} s)", "nearest rates that fit: "
+            + ", ".join(f"{r:g}" for r in _fitting_rates(rate, dt, frame_rate)) + " Hz"))
     output = _output_spec(scene, out, output_override, max(every_steps, 1), problems)
 
     # --- bodies, then emitted particles
@@ -186,29 +188,29 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
             force_vec.append(_vec3(force["force"], dim))
             force_start.append(float(force.get("start", 0.0)))
             force_end.append(float(force.get("end", math.inf)))
-    for emitter in data.get("emitters") or []:
-        for particle in _emit(emitter, dim, dt):
-            names.append(particle["name"])
-            kinds.append(BODY_DYNAMIC)
-            masses.append(float(emitter["mass"]))
-            pos0.append(particle["position"])
-            vel0.append(particle["velocity"])
-            quat0.append(IDENTITY_QUAT)
-            colors.append(_color(emitter.get("color"), len(colors)))
-            shapes.append({"type": "sphere",
-                           "radius": float(emitter.get("radius", DEFAULT_PARTICLE_RADIUS))})
-            emit.append(particle["emit_step"])
+    emitted = [_emit(emitter, dim, dt) for emitter in data.get("emitters") or []]
+    if problems:  # report before building per-frame data: a bad scene must not cost memory
+        raise InputError(problems)
 
     gravity = data.get("gravity", list(DEFAULT_GRAVITY[:dim]))
-    n_frames = -(-n_steps // steps_per_frame)
-    # Frame start times, computed exactly as the loop computes them (step * dt), so that
-    # replayed input recorded by an earlier run lines up bit for bit.
-    frame_times = np.arange(n_frames) * steps_per_frame * dt
     observer = compile_observer(scene, gravity, problems)
-    inputs = compile_input(scene, frame_times, observer, problems)
-
+    inputs = compile_input(scene, observer, problems)
     if problems:
         raise InputError(problems)
+
+    for emitter, particles in zip(data.get("emitters") or [], emitted):
+        count = len(particles["names"])
+        names.extend(particles["names"])
+        kinds.extend([BODY_DYNAMIC] * count)
+        masses.extend([float(emitter["mass"])] * count)
+        pos0.extend(particles["position"])
+        vel0.extend(particles["velocity"])
+        quat0.extend(np.tile(IDENTITY_QUAT, (count, 1)))
+        colors.extend(_color(emitter.get("color"), len(colors) + k) for k in range(count))
+        sphere = {"type": "sphere", "radius": float(emitter.get("radius",
+                                                                DEFAULT_PARTICLE_RADIUS))}
+        shapes.extend([sphere] * count)
+        emit.extend(particles["emit_step"])
 
     n = len(names)
     mass = np.array(masses, dtype=float)
@@ -243,6 +245,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         body_index={name: i for i, name in enumerate(names)},
         observer=observer,
         inputs=inputs,
+        notes=_notes(data),
         # Static and kinematic bodies with analytic shapes (meshes join with collision).
         observer_obstacles=tuple(i for i, (kind, shape) in enumerate(zip(kinds, shapes))
                                  if kind != BODY_DYNAMIC and shape is not None
@@ -310,19 +313,18 @@ def _shape(shape: dict | None, dim: int) -> dict | None:
         size = _vec3(shape["size"], dim)
         shape["size"] = size if dim == 3 else size[:2] + [0.0]
     if shape["type"] == "plane":
-        normal = np.array(_vec3(shape["normal"], dim))
-        shape["normal"] = list(normal / np.linalg.norm(normal))
+        shape["normal"] = unit(_vec3(shape["normal"], dim)).tolist()
         shape["offset"] = float(shape.get("offset", 0.0))
         shape["orientation"] = list(quat_rotating([0, 1, 0], shape["normal"]))
     return shape
 
 
-def _emit(emitter: dict, dim: int, dt: float) -> list[dict]:
-    """Particles of one emitter: deterministic for a seed on every platform (PCG64)."""
+def _emit(emitter: dict, dim: int, dt: float) -> dict:
+    """Particles of one emitter as arrays: deterministic for a seed on every platform
+    (PCG64). Returns names, position (count, 3), velocity (count, 3), emit_step (count,)."""
     rng = np.random.Generator(np.random.PCG64(int(emitter.get("seed", 0))))
     count = int(emitter["count"])
-    axis = np.array(_vec3(emitter.get("direction", [0.0, 1.0, 0.0][:dim]), dim), dtype=float)
-    axis /= np.linalg.norm(axis)
+    axis = unit(_vec3(emitter.get("direction", [0.0, 1.0, 0.0][:dim]), dim))
     spread = math.radians(float(emitter.get("spread_deg", 0.0)))
     jitter = float(emitter.get("speed_jitter", 0.0))
     speed = float(emitter["speed"]) * (1.0 + jitter * rng.uniform(-1.0, 1.0, count))
@@ -332,8 +334,7 @@ def _emit(emitter: dict, dim: int, dt: float) -> list[dict]:
         phi = rng.uniform(0.0, 2.0 * math.pi, count)
         sin_theta = np.sqrt(np.maximum(0.0, 1.0 - cos_theta ** 2))
         helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
-        u = np.cross(axis, helper)
-        u /= np.linalg.norm(u)
+        u = unit(np.cross(axis, helper))
         w = np.cross(axis, u)
         dirs = (cos_theta[:, None] * axis + (sin_theta * np.cos(phi))[:, None] * u
                 + (sin_theta * np.sin(phi))[:, None] * w)
@@ -343,13 +344,26 @@ def _emit(emitter: dict, dim: int, dt: float) -> list[dict]:
         dirs = np.stack([c * axis[0] - s * axis[1], s * axis[0] + c * axis[1],
                          np.zeros(count)], axis=1)
     nozzle = _vec3(emitter.get("position", [0.0] * dim), dim)
-    rate = float(emitter["rate"])
     width = max(4, len(str(count - 1)))
-    return [{"name": f"{emitter['name']}.{i:0{width}d}", "position": nozzle,
-             "velocity": list(speed[i] * dirs[i]),
-             "emit_step": _fit_steps_up(i / rate, dt)} for i in range(count)]
+    # First step whose time is >= i / rate (1e-9 slack for decimal round-off).
+    emit_step = np.maximum(0, np.ceil(np.arange(count) / float(emitter["rate"]) / dt - 1e-9))
+    return {"names": [f"{emitter['name']}.{i:0{width}d}" for i in range(count)],
+            "position": np.tile(nozzle, (count, 1)), "velocity": speed[:, None] * dirs,
+            "emit_step": emit_step.astype(np.int64)}
 
 
-def _fit_steps_up(t: float, dt: float) -> int:
-    """First step index whose time is >= t (1e-9 slack for decimal round-off)."""
-    return max(0, math.ceil(t / dt - 1e-9))
+def _fitting_rates(rate: float, dt: float, frame_rate: float) -> list[float]:
+    """Output rates near `rate` whose period is a whole number of steps, and the frame rate."""
+    k = max(1, round(1.0 / (rate * dt)))
+    near = {1.0 / (dt * j) for j in (k - 1, k, k + 1) if j >= 1}
+    return sorted(near | {frame_rate}, key=lambda r: abs(r - rate))[:4]
+
+
+def _notes(data: dict) -> tuple:
+    """Keys that are valid but have no effect in this version, said out loud."""
+    with_material = [i for i, b in enumerate(data.get("bodies") or []) if "material" in b]
+    if not with_material:
+        return ()
+    return (f"material (restitution, friction) of {len(with_material)} body(ies), first "
+            f"bodies[{with_material[0]}], has no effect yet: this version detects no "
+            f"collisions and applies no collision response",)

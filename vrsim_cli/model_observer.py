@@ -1,10 +1,11 @@
 """The observer's and the sensors' part of the model (slide 5.1, loop stage 1).
 
-Layer 2, called by `model.compile_model`. Sensor input is resolved at compile time into one
-row per frame, so reading the sensors in the loop is a lookup and a run is reproducible:
-- `frame_input`  (n_frames, 3): alpha, beta, pitch in [-1, 1] (mouse, per-frame list, CSV
-  file, or a replayed MCAP);
-- `frame_pose`   (n_frames, 7): px py pz qw qx qy qz (head tracker, or a replayed tracker).
+Layer 2, called by `model.compile_model`. Sensor files are read at compile time into
+sample arrays, so a run never touches them again and is reproducible; `input_at` evaluates
+the samples at a frame's start time (memory grows with the samples, not the frames):
+- values (k, 3): alpha, beta, pitch in [-1, 1] at `times` (mouse, CSV file, replay), or one
+  row per frame (`per_frame`);
+- poses  (k, 7): px py pz qw qx qy qz at `times` (head tracker, or a replayed tracker).
 Files named in a scene resolve against its folder and may not leave it.
 """
 
@@ -20,7 +21,7 @@ import numpy as np
 
 from vrsim_cli.errors import InputError, Problem
 from vrsim_cli.scene import Scene
-from vrsim_cli.spatial import quat_normalize, quat_slerp
+from vrsim_cli.spatial import quat_normalize, quat_slerp, unit
 
 # X3D NavigationInfo defaults: avatarSize [0.25, 1.6, 0.75], speed 1 m/s.
 DEFAULT_RADIUS = 0.25  # m, collision radius
@@ -57,8 +58,24 @@ class ObserverModel:
 @dataclass(frozen=True)
 class InputModel:
     source: str  # none | mouse | per_frame | file | tracker | replay
-    frame_input: np.ndarray  # (n_frames, 3) alpha, beta, pitch
-    frame_pose: np.ndarray | None  # (n_frames, 7) tracker poses, or None
+    times: np.ndarray  # (k,) s, strictly increasing (unused for per_frame)
+    values: np.ndarray  # (k, 3) alpha, beta, pitch
+    poses: np.ndarray | None = None  # (k, 7) tracker poses at `times`, or None
+    linear: bool = False  # interpolate between samples instead of holding
+
+
+NO_INPUT = InputModel("none", np.zeros(0), np.zeros((0, 3)))
+
+
+def input_at(inputs: InputModel, frame: int, t: float):
+    """Sensor values of `frame` starting at time t: ((alpha, beta, pitch), pose or None)."""
+    if inputs.source == "per_frame":
+        row = inputs.values[frame] if frame < len(inputs.values) else np.zeros(3)
+        return row, None
+    at = np.array([t])
+    if inputs.poses is not None:
+        return np.zeros(3), _sample_poses(inputs.times, inputs.poses, at, inputs.linear)[0]
+    return _sample(inputs.times, inputs.values, at, inputs.linear)[0], None
 
 
 def compile_observer(scene: Scene, gravity, problems: list[Problem]) -> ObserverModel | None:
@@ -75,7 +92,7 @@ def compile_observer(scene: Scene, gravity, problems: list[Problem]) -> Observer
             direction = np.array([0.0, 0.0, -1.0])
     else:
         direction = np.array(spec.get("direction", [0.0, 0.0, -1.0]), dtype=float)
-        look_at = position + direction / np.linalg.norm(direction)
+        look_at = position + unit(direction)
     up = np.array(spec.get("up", [0.0, 1.0, 0.0]), dtype=float)
     turn = math.radians
     return ObserverModel(
@@ -83,7 +100,7 @@ def compile_observer(scene: Scene, gravity, problems: list[Problem]) -> Observer
         position0=position,
         direction0=direction,
         look_at=look_at,
-        up=up / np.linalg.norm(up),
+        up=unit(up),
         v_max=float(spec.get("v_max", DEFAULT_V_MAX)),
         gamma_max=turn(float(spec.get("gamma_max", DEFAULT_TURN_DEG))),
         delta_max=turn(float(spec.get("delta_max", DEFAULT_TURN_DEG))),
@@ -97,43 +114,35 @@ def compile_observer(scene: Scene, gravity, problems: list[Problem]) -> Observer
     )
 
 
-def compile_input(scene: Scene, frame_times: np.ndarray, observer: ObserverModel | None,
+def compile_input(scene: Scene, observer: ObserverModel | None,
                   problems: list[Problem]) -> InputModel:
-    """Resolve the scene's `input` into one row per frame (frame_times: (n_frames,) s)."""
+    """Read the scene's `input` into sample arrays."""
     spec = scene.data.get("input") or {}
-    n = len(frame_times)
-    zeros = np.zeros((n, 3))
     linear = spec.get("interpolation", "hold") == "linear"
     if "mouse" in spec:
         samples = spec["mouse"]
         times = np.array([s["t"] for s in samples], dtype=float)
         values = np.array([[s.get(c, 0.0) for c in INPUT_CHANNELS] for s in samples])
-        return InputModel("mouse", _sample(times, values, frame_times, linear), None)
+        return InputModel("mouse", times, values, None, linear)
     if "per_frame" in spec:
         rows = spec["per_frame"]
-        values = zeros.copy()
-        count = min(len(rows), n)
-        for i in range(count):
-            values[i, :len(rows[i])] = rows[i]
-        return InputModel("per_frame", values, None)
-    if "file" in spec:
-        path = scene.resolve_path(("input", "file"), problems)
-        if path is None:
-            return InputModel("file", zeros, None)
-        times, values = _read_mouse_csv(scene, path, problems)
-        return InputModel("file", _sample(times, values, frame_times, linear), None)
-    if "tracker" in spec:
-        path = scene.resolve_path(("input", "tracker"), problems)
-        if path is None:
-            return InputModel("tracker", zeros, None)
-        times, poses = _read_tracker_csv(scene, path, problems)
-        return InputModel("tracker", zeros, _sample_poses(times, poses, frame_times, linear))
-    if "replay" in spec:
-        path = scene.resolve_path(("input", "replay"), problems)
-        if path is None:
-            return InputModel("replay", zeros, None)
-        return _read_replay(scene, path, frame_times, observer, problems)
-    return InputModel("none", zeros, None)
+        values = np.zeros((len(rows), 3))
+        for i, row in enumerate(rows):
+            values[i, :len(row)] = row
+        return InputModel("per_frame", np.zeros(0), values)
+    for key in ("file", "tracker", "replay"):
+        if key in spec:
+            path = scene.resolve_path(("input", key), problems)
+            if path is None:
+                return NO_INPUT
+            if key == "file":
+                times, values = _read_mouse_csv(scene, path, problems)
+                return InputModel("file", times, values, None, linear)
+            if key == "tracker":
+                times, poses = _read_tracker_csv(scene, path, problems)
+                return InputModel("tracker", times, np.zeros((len(times), 3)), poses, linear)
+            return _read_replay(scene, path, observer, problems)
+    return NO_INPUT
 
 
 def _sample(times: np.ndarray, values: np.ndarray, at: np.ndarray, linear: bool) -> np.ndarray:
@@ -201,7 +210,7 @@ def _csv_rows(scene: Scene, path: Path, key: tuple, columns: tuple, optional: tu
         problems.append(scene.problem(key, f"file '{scene.get(key)}' not found",
                                       f"paths are relative to {scene.base_dir}"))
         return None
-    except (OSError, UnicodeDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
         problems.append(scene.problem(key, f"cannot read '{scene.get(key)}': "
                                       f"{getattr(exc, 'strerror', None) or exc}"))
         return None
@@ -246,10 +255,10 @@ def _read_tracker_csv(scene, path, problems):
     return data[:, 0], poses
 
 
-def _read_replay(scene, path, frame_times, observer, problems) -> InputModel:
-    """Sensor values recorded on `/vrsim/input` by an earlier run, re-sampled (held) at this
-    run's frame times."""
-    zeros = np.zeros((len(frame_times), 3))
+def _read_replay(scene, path, observer, problems) -> InputModel:
+    """Sensor values recorded on `/vrsim/input` by an earlier run, held between samples, so
+    a run at the same frame times sees exactly the recorded values."""
+    key = ("input", "replay")
     try:
         from mcap.reader import make_reader
 
@@ -262,22 +271,23 @@ def _read_replay(scene, path, frame_times, observer, problems) -> InputModel:
                 if "pose" in sample:
                     poses.append([float(x) for x in sample["pose"]])
     except FileNotFoundError:
-        problems.append(scene.problem(("input", "replay"), f"file '{scene.get(('input', 'replay'))}"
-                                      f"' not found", f"paths are relative to {scene.base_dir}"))
-        return InputModel("replay", zeros, None)
+        problems.append(scene.problem(key, f"file '{scene.get(key)}' not found",
+                                      f"paths are relative to {scene.base_dir}"))
+        return NO_INPUT
     except Exception as exc:  # the mcap library raises many types for corrupt files
-        problems.append(scene.problem(("input", "replay"), f"cannot read recorded input: "
+        problems.append(scene.problem(key, f"cannot read recorded input: "
                                       f"{type(exc).__name__}: {exc}"))
-        return InputModel("replay", zeros, None)
+        return NO_INPUT
     if not times:
-        problems.append(scene.problem(("input", "replay"), "the file has no /vrsim/input "
-                                      "messages", "record one with vrsim run ... -o FILE.mcap"))
-        return InputModel("replay", zeros, None)
-    times_a = np.array(times)
+        problems.append(scene.problem(key, "the file has no /vrsim/input messages",
+                                      "record one with vrsim run ... -o FILE.mcap"))
+        return NO_INPUT
+    if any(b <= a for a, b in zip(times, times[1:])) or (poses and len(poses) != len(times)):
+        problems.append(scene.problem(key, "the recorded input is not a valid sequence"))
+        return NO_INPUT
     if poses:
         if observer is not None and observer.mode != "tracked":
             problems.append(scene.problem(("observer", "mode"), "the replayed input holds "
                                           "tracker poses", "use mode: tracked"))
-        return InputModel("replay", zeros, _sample_poses(times_a, np.array(poses), frame_times,
-                                                         False))
-    return InputModel("replay", _sample(times_a, np.array(values), frame_times, False), None)
+        return InputModel("replay", np.array(times), np.array(values), np.array(poses))
+    return InputModel("replay", np.array(times), np.array(values))

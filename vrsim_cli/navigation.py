@@ -26,11 +26,10 @@ import numpy as np
 
 from vrsim_cli import geometry
 from vrsim_cli.model import Model
-from vrsim_cli.sensors import Inputs
 from vrsim_cli.spatial import (look_rotation, quat_conjugate, quat_from_axis_angle,
                                quat_multiply, quat_normalize, quat_rotate, quat_slerp,
-                               rotate_about_y)
-from vrsim_cli.state import State
+                               quat_to_matrix, rotate_about_y)
+from vrsim_cli.state import Inputs, State
 
 WALL_ITERATIONS = 4  # push-outs per frame; corners need two, more means "stuck": stop
 MIN_PITCH = math.radians(1.0)  # fly: keep the view at least 1 degree away from straight up/down
@@ -41,6 +40,7 @@ def step(model: Model, state: State, inputs: Inputs, dt: float) -> State:
     """Advance the observer by one frame of `dt` seconds. Pure: returns a new State."""
     ob = model.observer
     mode = ob.mode
+    vel = None  # None: the frame's displacement over dt
     if mode == "tracked":
         pos, quat = inputs.pose[:3].copy(), inputs.pose[3:].copy()
         direction = quat_rotate(quat, [0.0, 0.0, -1.0])
@@ -49,10 +49,10 @@ def step(model: Model, state: State, inputs: Inputs, dt: float) -> State:
         pos, direction, quat = _examine(model, state, inputs, dt)
         fall = 0.0
     else:
-        pos, direction, fall = _walk_or_fly(model, state, inputs, dt)
+        pos, direction, fall, vel = _walk_or_fly(model, state, inputs, dt)
         quat = look_rotation(direction, ob.up, state.observer_quat)
     return state.replace(observer_pos=pos, observer_dir=direction, observer_quat=quat,
-                         observer_vel=(pos - state.observer_pos) / dt,
+                         observer_vel=vel if vel is not None else (pos - state.observer_pos) / dt,
                          observer_angvel=angular_velocity(state.observer_quat, quat, dt),
                          observer_fall=fall)
 
@@ -78,14 +78,15 @@ def _walk_or_fly(model: Model, state: State, inputs: Inputs, dt: float):
         d_new = _pitch(d_new, up, inputs.pitch * ob.pitch_max * dt)
     pos = state.observer_pos
     proposed = pos + v * dt
-    obstacles = _obstacles(model, state)
-    if not obstacles:
-        return proposed, d_new, 0.0
+    if not model.observer_obstacles:  # the slide's walk: v is the velocity, exactly
+        return proposed, d_new, 0.0, v
+    obstacles = Obstacles(model, state)
     if ob.mode == "fly":
-        return _resolve_walls(model, obstacles, pos, proposed, horizontal=False), d_new, 0.0
+        moved = _resolve_walls(model, obstacles, pos, proposed, horizontal=False)
+        return moved, d_new, 0.0, (v if moved is proposed else None)
     moved = _resolve_walls(model, obstacles, pos, proposed, horizontal=True)
     pos_new, fall = _follow_terrain(model, state, obstacles, pos, moved, dt)
-    return pos_new, d_new, fall
+    return pos_new, d_new, fall, None
 
 
 def _pitch(d, up, angle):
@@ -99,9 +100,29 @@ def _pitch(d, up, angle):
     return quat_rotate(quat_from_axis_angle(right, current - target), d)
 
 
-def _obstacles(model: Model, state: State):
-    return [(model.body_shape[i], state.body_pos[i], state.body_quat[i])
-            for i in model.observer_obstacles]
+class Obstacles:
+    """The bodies the observer collides with, with their world bounding boxes, so each
+    query only looks at the few whose boxes it touches (one numpy test for all)."""
+
+    def __init__(self, model: Model, state: State):
+        index = np.asarray(model.observer_obstacles, dtype=np.int64)
+        self.shapes = [model.body_shape[i] for i in index]
+        self.pos = state.body_pos[index]
+        self.quat = state.body_quat[index]
+        half = np.array([geometry.local_half_extents(s) if s["type"] != "plane"
+                         else np.full(3, np.inf) for s in self.shapes]).reshape(-1, 3)
+        # world box of a rotated box: |R| @ half (planes: everywhere)
+        finite = np.isfinite(half).all(axis=1)
+        world = np.full_like(half, np.inf)
+        if finite.any():
+            world[finite] = np.einsum("nij,nj->ni", np.abs(quat_to_matrix(self.quat[finite])),
+                                      half[finite])
+        self.lo, self.hi = self.pos - world, self.pos + world
+
+    def near(self, lo, hi):
+        """(shape, pos, quat) of the obstacles whose boxes overlap the box [lo, hi]."""
+        hit = np.all((self.lo <= hi) & (self.hi >= lo), axis=1)
+        return [(self.shapes[i], self.pos[i], self.quat[i]) for i in np.flatnonzero(hit)]
 
 
 def _body_axis(model: Model, eye):
@@ -120,7 +141,7 @@ def _penetration(model: Model, obstacles, eye):
     a, b = _body_axis(model, eye)
     deepest, normal = 0.0, None
     radius = model.observer.radius
-    for shape, pos, quat in obstacles:
+    for shape, pos, quat in obstacles.near(np.minimum(a, b) - radius, np.maximum(a, b) + radius):
         if not geometry.capsule_overlaps_bounds(shape, pos, quat, a, b, radius):
             continue
         d, n, _ = geometry.capsule_distance(shape, pos, quat, a, b, radius)
@@ -159,7 +180,12 @@ def ground_height(model: Model, obstacles, eye) -> float | None:
     ob = model.observer
     origin = eye - (ob.eye_height - ob.step_height) * ob.up
     best = None
-    for shape, pos, quat in obstacles:
+    # The downward ray's box: below the origin, along -up (the whole space if up is skew).
+    lo = np.where(ob.up > 0, -np.inf, origin) if np.count_nonzero(ob.up) == 1 else \
+        np.full(3, -np.inf)
+    hi = np.where(ob.up < 0, np.inf, origin) if np.count_nonzero(ob.up) == 1 else \
+        np.full(3, np.inf)
+    for shape, pos, quat in obstacles.near(lo, hi):
         t = geometry.ray_cast(shape, pos, quat, origin, -ob.up)
         if t is not None and (best is None or t < best):
             best = t

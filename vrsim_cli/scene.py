@@ -30,6 +30,7 @@ SCHEMA_RESOURCE = "scene.schema.json"
 MAX_FILE_BYTES = 32 * 1024 * 1024  # a scene is text written by people; larger is a mistake
 MAX_NODES = 200_000  # values after alias expansion; bounds memory and validation time
 MAX_DEPTH = 64
+MAX_BODIES = 1_000_000  # bodies plus emitted particles: beyond this a scene is a mistake
 
 _STR_TAG = "tag:yaml.org,2002:str"
 
@@ -105,8 +106,10 @@ class Scene:
                 node = node.setdefault(part, {})
             node[path[-1]] = value
             overrides[tuple(path)] = option
-        return Scene(self.file, self.base_dir, self.text, data, self.value_pos, self.key_pos,
-                     overrides)
+        scene = Scene(self.file, self.base_dir, self.text, data, self.value_pos, self.key_pos,
+                      overrides)
+        _validate(scene)  # command-line values meet the same checks as the file's
+        return scene
 
     def resolve_path(self, path: Sequence[str | int], problems: list[Problem]) -> Path | None:
         """Resolve the file path stored at `path` against the scene's folder.
@@ -164,13 +167,18 @@ def parse_scene(text: str, file: str = "<scene>", base_dir: str | os.PathLike = 
     if problems:
         raise InputError(problems)
     scene = Scene(file, Path(base_dir), text, data, value_pos, key_pos)
+    _validate(scene)
+    return scene
+
+
+def _validate(scene: Scene) -> None:
+    """Schema first; the semantic checks assume a document that matches the schema."""
     problems = list(_schema_problems(scene))
     if not problems:
         problems = list(_semantic_problems(scene))
     if problems:
         problems.sort(key=lambda p: (p.line, p.col))
         raise InputError(problems)
-    return scene
 
 
 def _load_yaml(text: str, file: str):
@@ -184,6 +192,9 @@ def _load_yaml(text: str, file: str):
         if node is None:
             return None, {}, {}, [Problem(file, 1, 1, (), "the file is empty",
                                           "a scene starts with 'vrsim: 1'")]
+        # Duplicate keys are found before construction, which folds merge keys (<<) into
+        # their mappings; a key given beside a merge overrides it, as YAML intends.
+        _duplicate_keys(node, problems, file, [MAX_NODES], set())
         data = loader.construct_document(node)
     except yaml.YAMLError as exc:
         return None, {}, {}, [_yaml_problem(file, exc, text)]
@@ -228,6 +239,34 @@ class _TooBig(Exception):
         self.line, self.col, self.path = line, col, path
 
 
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+
+
+def _duplicate_keys(node, problems, file, budget, visiting):
+    """Report keys given twice in one mapping (merge keys excepted). Bounded like _walk;
+    `visiting` stops recursive aliases."""
+    budget[0] -= 1
+    if budget[0] < 0 or id(node) in visiting:
+        return
+    if isinstance(node, yaml.MappingNode):
+        seen: dict = {}
+        for key_node, value_node in node.value:
+            if isinstance(key_node, yaml.ScalarNode) and key_node.tag == _STR_TAG:
+                line = key_node.start_mark.line + 1
+                if key_node.value in seen:
+                    problems.append(Problem(file, line, key_node.start_mark.column + 1, None,
+                                            f"duplicate key '{key_node.value}' (first at line "
+                                            f"{seen[key_node.value]})"))
+                seen.setdefault(key_node.value, line)
+    if isinstance(node, (yaml.MappingNode, yaml.SequenceNode)):
+        visiting.add(id(node))
+        children = [v for pair in node.value for v in pair] \
+            if isinstance(node, yaml.MappingNode) else node.value
+        for child in children:
+            _duplicate_keys(child, problems, file, budget, visiting)
+        visiting.discard(id(node))
+
+
 def _walk(node, value, path, value_pos, key_pos, problems, file, budget, depth):
     """Record positions, and catch what the schema cannot: duplicate and non-string keys,
     NaN and infinities. Bounded by the node budget and depth (alias bombs, recursion)."""
@@ -249,12 +288,8 @@ def _walk(node, value, path, value_pos, key_pos, problems, file, budget, depth):
                                         "quote it if it should be a name"))
                 continue
             key = key_node.value
-            if key in seen:
-                problems.append(Problem(file, kline, kcol, path + (key,),
-                                        f"duplicate key '{key}' (first at line {seen[key]})"))
-                continue
             seen[key] = kline
-            key_pos[path + (key,)] = (kline, kcol)
+            key_pos[path + (key,)] = (kline, kcol)  # the last one is the one that counts
             _walk(value_node, value.get(key), path + (key,), value_pos, key_pos, problems,
                   file, budget, depth + 1)
     elif isinstance(node, yaml.SequenceNode) and isinstance(value, list):
@@ -427,6 +462,11 @@ def _semantic_problems(scene: Scene) -> Iterator[Problem]:
                                          f"{kind}")
             if "end" in force and force["end"] <= force.get("start", 0.0):
                 yield scene.problem(fat + ("end",), "must be later than start")
+    total = len(data.get("bodies") or []) + sum(e["count"] for e in data.get("emitters") or [])
+    if total > MAX_BODIES:
+        yield scene.problem(("emitters",) if data.get("emitters") else ("bodies",),
+                            f"the scene has {total} bodies and particles; at most {MAX_BODIES} "
+                            f"are allowed", at_key=True)
     for i, emitter in enumerate(data.get("emitters") or []):
         at = ("emitters", i)
         yield from unique(emitter["name"], at + ("name",))

@@ -12,10 +12,17 @@ import numpy as np
 IDENTITY_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
 
 
+def unit(v) -> np.ndarray:
+    """v / |v| for (..., n) vectors, scaled by the largest component first so that tiny
+    (1e-320) and huge (1e300) inputs neither underflow nor overflow. v must not be zero."""
+    v = np.asarray(v, dtype=float)
+    v = v / np.abs(v).max(axis=-1, keepdims=True)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
 def quat_normalize(q) -> np.ndarray:
     """q: (..., 4) -> unit quaternion(s) with w >= 0 (one representative per rotation)."""
-    q = np.asarray(q, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = unit(q)
     return np.where(q[..., :1] < 0, -q, q)
 
 
@@ -33,8 +40,7 @@ def quat_multiply(a, b) -> np.ndarray:
 
 def quat_from_axis_angle(axis, angle) -> np.ndarray:
     """Rotation by `angle` (rad) about `axis` (3,), which need not be unit length."""
-    axis = np.asarray(axis, dtype=float)
-    axis = axis / np.linalg.norm(axis)
+    axis = unit(axis)
     half = 0.5 * angle
     return np.concatenate([[np.cos(half)], np.sin(half) * axis])
 
@@ -60,10 +66,8 @@ def quat_to_matrix(q) -> np.ndarray:
 
 def quat_rotating(from_vec, to_vec) -> np.ndarray:
     """The shortest-arc rotation taking direction `from_vec` (3,) to direction `to_vec` (3,)."""
-    a = np.asarray(from_vec, dtype=float)
-    b = np.asarray(to_vec, dtype=float)
-    a = a / np.linalg.norm(a)
-    b = b / np.linalg.norm(b)
+    a = unit(from_vec)
+    b = unit(to_vec)
     cos = float(np.dot(a, b))
     if cos < -1.0 + 1e-12:  # opposite: any axis perpendicular to a will do
         perp = np.cross(a, [1.0, 0.0, 0.0])

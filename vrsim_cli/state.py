@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vrsim_cli.model import Model
+from vrsim_cli.model_observer import input_at
 from vrsim_cli.spatial import look_rotation, quat_rotate
 
 
@@ -59,8 +60,9 @@ def make_state(model: Model) -> State:
         ob = model.observer
         pos, direction = ob.position0.copy(), ob.direction0.copy()
         quat = look_rotation(direction, ob.up)
-        if model.inputs is not None and model.inputs.frame_pose is not None:
-            pos, quat = model.inputs.frame_pose[0, :3].copy(), model.inputs.frame_pose[0, 3:].copy()
+        pose = input_at(model.inputs, 0, 0.0)[1]
+        if pose is not None:  # tracked: the first tracker pose
+            pos, quat = pose[:3].copy(), pose[3:].copy()
             direction = quat_rotate(quat, [0.0, 0.0, -1.0])
         observer = dict(observer_pos=pos, observer_dir=direction, observer_quat=quat,
                         observer_vel=np.zeros(3), observer_angvel=np.zeros(3),
@@ -74,6 +76,30 @@ def make_state(model: Model) -> State:
         body_angvel=np.zeros((model.n_body, 3)),
         **observer,
     )
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """Sensor values for one frame.
+
+    alpha: speed along the view direction in [-1, 1]; beta: turn in [-1, 1] (beta < 0 turns
+    right); pitch: fly pitch in [-1, 1]; pose: (7,) px py pz qw qx qy qz from a tracker.
+    """
+
+    t: float
+    frame: int
+    alpha: float = 0.0
+    beta: float = 0.0
+    pitch: float = 0.0
+    pose: np.ndarray | None = None
+
+    def record(self) -> dict:
+        """The JSON message written to /vrsim/input (and read back by input.replay)."""
+        out = {"t": self.t, "frame": self.frame, "alpha": self.alpha, "beta": self.beta,
+               "pitch": self.pitch}
+        if self.pose is not None:
+            out["pose"] = [float(x) for x in self.pose]
+        return out
 
 
 STATE_ARRAYS = ("body_pos", "body_vel", "body_quat", "body_angvel", "observer_pos",

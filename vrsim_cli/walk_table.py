@@ -17,6 +17,7 @@ from decimal import Decimal
 from vrsim_cli.errors import InputError
 from vrsim_cli.loop import run
 from vrsim_cli.model import compile_model
+from vrsim_cli.model_observer import input_at
 from vrsim_cli.scene import Scene, parse_scene
 from vrsim_cli.state import make_state
 
@@ -73,7 +74,7 @@ def walk_table(scene: Scene) -> list[Row]:
     gamma_max = Decimal(repr(float(scene.data["observer"].get("gamma_max", 90.0))))
     rows = []
     for frame, state in enumerate(ends):
-        alpha, beta, _ = model.inputs.frame_input[frame]
+        alpha, beta, _ = input_at(model.inputs, frame, 0.0)[0]
         rows.append(Row(
             alpha=float(alpha), beta=float(beta),
             v_zx=_zx(state.observer_vel), gamma=Decimal(repr(float(beta))) * gamma_max,
