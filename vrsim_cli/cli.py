@@ -149,8 +149,11 @@ def _output_target(output: str | None, fmt: str | None):
               "missed frame deadlines.")
 @click.option("--profile", is_flag=True, help="Print the time spent in each loop stage.")
 @click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
+@click.option("--frames", "frames_dir", type=click.Path(file_okay=False), help="Render PNG "
+              "frames into this folder (off-screen, OSMesa). Overrides output.frames.dir.")
 @_reports_errors
-def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet):
+def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet,
+        frames_dir):
     """Run SCENE_FILE and write its trajectory."""
     from vrsim_cli.loop import run as run_loop
     from vrsim_cli.model import compile_model
@@ -161,8 +164,10 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     target = _output_target(output, fmt)
     scene = load_scene(scene_file).with_overrides({
         ("duration",): (duration, "--duration"), ("dt",): (dt, "--dt"),
-        ("integrator",): (integrator, "--integrator")})
+        ("integrator",): (integrator, "--integrator"),
+        ("output", "frames", "dir"): (frames_dir, "--frames")})
     model = compile_model(scene, output_override=target)
+    frames = _open_frames(model)  # before simulating: a missing OSMesa fails at once
     say = (lambda *a, **k: None) if quiet else click.echo
     if model.dt != model.dt_requested:
         say(f"note: dt = {model.dt_requested:g} s does not divide the frame interval "
@@ -177,16 +182,20 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         try:
             result = run_loop(model, state, writer, realtime=realtime,
                               should_stop=lambda: signals.received is not None,
-                              on_frame=progress)
+                              on_frame=progress, render=frames)
         except SimulationError as exc:
             failure = exc  # finalise the output up to the last good state, then report
         except BaseException:  # an output error, or a bug: keep any previous file
             progress.clear()
             if writer is not None:
                 writer.abort()
+            if frames is not None:
+                frames.abort()
             raise
         finally:
             progress.clear()
+    if frames is not None:
+        frames.close()
     if writer is not None:
         try:
             writer.close()
@@ -199,11 +208,27 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         click.echo(f"error: {failure}{kept}", err=True)
         sys.exit(failure.exit_code)
     _summary(model, result, say, profile, realtime)
+    if frames is not None:
+        say(f"frames: {frames.images} images of {model.frames.width}x{model.frames.height} px "
+            f"-> {model.frames.dir}")
     if result.interrupted:
         name = signal.Signals(signals.received).name
         click.echo(f"interrupted by {name} at t = {result.state.t:.6g} s; output finalised",
                    err=True)
         sys.exit(128 + signals.received)
+
+
+def _open_frames(model):
+    """The frames writer of the run (stage 3), or None. Raises RenderUnavailable (exit 2)
+    when OSMesa or PyOpenGL is missing; OpenGL is imported here and nowhere else."""
+    if model.frames is None:
+        return None
+    from vrsim_cli.render import open_renderer, time_label
+    from vrsim_cli.writers.frames import FramesWriter
+
+    spec = model.frames
+    renderer = open_renderer(model, spec.width, spec.height, spec.camera)
+    return FramesWriter(model, spec, renderer, label=time_label)
 
 
 def _summary(model, result, say, profile: bool, realtime: bool) -> None:
