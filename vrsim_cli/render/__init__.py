@@ -54,9 +54,12 @@ def open_renderer(model, width: int, height: int, camera: Camera | None = None):
     if platform is not None and "osmesa" not in type(platform.PLATFORM).__module__:
         raise RenderUnavailable("OpenGL was already loaded for another platform in this "
                                 "process")
+    problem = _probe()
+    if problem:
+        raise RenderUnavailable(problem)
     try:
         from vrsim_cli.render.osmesa import OsmesaRenderer, OsmesaUnavailable
-    except ImportError as exc:
+    except (ImportError, AttributeError, OSError) as exc:  # PyOpenGL fails in several ways
         raise RenderUnavailable(_reason(exc)) from None
     try:
         return OsmesaRenderer(model, width, height, camera)
@@ -66,7 +69,27 @@ def open_renderer(model, width: int, height: int, camera: Camera | None = None):
         raise RenderUnavailable(str(exc)) from None
 
 
-def _reason(exc: ImportError) -> str:
+OSMESA_NAMES = ("libOSMesa.so.8", "libOSMesa.so.6", "libOSMesa.so")  # Debian's, then any
+
+
+def _probe() -> str | None:
+    """Why OSMesa rendering cannot work here, or None. Checked before PyOpenGL is
+    imported: without the library PyOpenGL fails late, with an AttributeError."""
+    import ctypes
+    import importlib.util
+
+    if "OpenGL" not in sys.modules and importlib.util.find_spec("OpenGL") is None:
+        return "PyOpenGL is not installed"
+    for name in OSMESA_NAMES:
+        try:
+            ctypes.CDLL(name)
+            return None
+        except OSError:
+            continue
+    return "the OSMesa library (libOSMesa.so) was not found"
+
+
+def _reason(exc: Exception) -> str:
     if getattr(exc, "name", None) == "OpenGL":
         return "PyOpenGL is not installed"
     if getattr(exc, "name", None) == "trimesh":

@@ -47,9 +47,7 @@ class OsmesaRenderer:
         if not self.context:
             raise OsmesaUnavailable("OSMesaCreateContextExt returned no context")
         self.buffer = np.zeros((self.height, self.width, 4), dtype=np.uint8)
-        if not osmesa.OSMesaMakeCurrent(self.context, self.buffer, GL.GL_UNSIGNED_BYTE,
-                                        self.width, self.height):
-            raise OsmesaUnavailable("OSMesaMakeCurrent failed")
+        self._make_current()
         self.parts = draw_list(model)
         self.opaque = self.parts.part_color[:, 3] >= 1.0
         self.lists = self._compile_lists()
@@ -57,6 +55,12 @@ class OsmesaRenderer:
         self._setup()
 
     # ------------------------------------------------------------------ set-up
+
+    def _make_current(self) -> None:
+        """Bind this renderer's context and buffer (several renderers may coexist)."""
+        if not osmesa.OSMesaMakeCurrent(self.context, self.buffer, GL.GL_UNSIGNED_BYTE,
+                                        self.width, self.height):
+            raise OsmesaUnavailable("OSMesaMakeCurrent failed")
 
     def _compile_lists(self) -> dict:
         lists = {}
@@ -95,6 +99,7 @@ class OsmesaRenderer:
 
     def render(self, state, overlay: str | None = None) -> np.ndarray:
         """The image of `state`: (height, width, 3) uint8, row 0 at the top."""
+        self._make_current()
         GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
         GL.glDisable(GL.GL_LIGHTING)
         GL.glLoadMatrixd(self.view.T)
