@@ -77,6 +77,8 @@ def unit_quad() -> tuple[np.ndarray, np.ndarray]:
 
 
 PRIMITIVES = {SPHERE: unit_sphere, BOX: unit_box, CYLINDER: unit_cylinder, QUAD: unit_quad}
+UNIT_HALF_EXTENT = {SPHERE: (1.0, 1.0, 1.0), BOX: (0.5, 0.5, 0.5), CYLINDER: (1.0, 0.5, 1.0),
+                    QUAD: (0.5, 0.0, 0.5)}
 
 
 def _scale(sx, sy, sz, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -148,22 +150,21 @@ def body_transforms(pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
 
 
 def bounding_spheres(model, dl: DrawList) -> tuple[np.ndarray, np.ndarray]:
-    """Centres (n, 3) m and radii (n,) m of every part at t = 0 that a camera should see.
+    """Points (n, 3) m and radii (n,) m whose union holds every part at t = 0 that a
+    camera should see: the two extreme corners of each part's world-aligned box.
 
     Planes are left out (they are infinite). A moving body also contributes the top of its
     free flight under gravity (forces ignored): the fountain's spray, a thrown ball's apex.
     """
     world = body_transforms(model.body_pos0, model.body_quat0)
     keep = dl.part_body >= 0
-    local = dl.part_local[keep]
-    placed = world[dl.part_body[keep]] @ local
-    centres = placed[:, :3, 3]
-    # Sphere parts: the longest scaled axis. Boxes, cylinders and meshes: the norm of all
-    # three scaled axes, which bounds the unit cube (half-diagonal sqrt(3)/2), the unit
-    # cylinder (sqrt(1 + 1/4)) and a mesh about as large as its scale.
-    axes = np.linalg.norm(placed[:, :3, :3], axis=1)
-    spheres = np.array([m == SPHERE for m in dl.part_mesh], dtype=bool)[keep]
-    radii = np.where(spheres, axes.max(axis=1), np.linalg.norm(axes, axis=1))
+    placed = world[dl.part_body[keep]] @ dl.part_local[keep]
+    # Half-extents of the unit primitives; a mesh is taken to span about its scale.
+    half = np.array([UNIT_HALF_EXTENT.get(m, (1.0, 1.0, 1.0)) for m in dl.part_mesh],
+                    dtype=float).reshape(-1, 3)[keep]
+    reach = np.einsum("nij,nj->ni", np.abs(placed[:, :3, :3]), half)  # world-aligned box
+    centres = np.concatenate([placed[:, :3, 3] - reach, placed[:, :3, 3] + reach])
+    radii = np.zeros(len(centres))
     g = np.asarray(model.gravity)
     g2 = float(g @ g)
     if g2 > 0:

@@ -65,8 +65,10 @@ class OsmesaRenderer:
     def _compile_lists(self) -> dict:
         lists = {}
         for name in dict.fromkeys(self.parts.part_mesh):
-            verts, norms = PRIMITIVES[name]() if name in PRIMITIVES else _load_mesh(name)
-            lists[name] = _display_list(verts, norms)
+            if name in PRIMITIVES:
+                lists[name] = _display_list(*PRIMITIVES[name](), closed=True)
+            else:  # a mesh file need not be closed or consistently wound: draw both sides
+                lists[name] = _display_list(*_load_mesh(name), closed=False)
         self.grid_list = _grid_list()
         return lists
 
@@ -76,6 +78,10 @@ class OsmesaRenderer:
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthFunc(GL.GL_LEQUAL)
         GL.glEnable(GL.GL_NORMALIZE)
+        # The primitives are closed and wound counter-clockwise seen from outside: culling
+        # back faces keeps them out of translucent blending and of tiny spheres' pixels.
+        GL.glEnable(GL.GL_CULL_FACE)
+        GL.glLightModeli(GL.GL_LIGHT_MODEL_TWO_SIDE, GL.GL_TRUE)  # for open meshes
         GL.glShadeModel(GL.GL_SMOOTH)
         # Filled geometry a little behind lines, so the grid shows on a ground plane.
         GL.glEnable(GL.GL_POLYGON_OFFSET_FILL)
@@ -151,9 +157,11 @@ class OsmesaRenderer:
             self.context = None
 
 
-def _display_list(verts: np.ndarray, norms: np.ndarray) -> int:
+def _display_list(verts: np.ndarray, norms: np.ndarray, closed: bool) -> int:
     index = GL.glGenLists(1)
     GL.glNewList(index, GL.GL_COMPILE)
+    if not closed:
+        GL.glDisable(GL.GL_CULL_FACE)
     GL.glEnableClientState(GL.GL_VERTEX_ARRAY)
     GL.glEnableClientState(GL.GL_NORMAL_ARRAY)
     GL.glVertexPointer(3, GL.GL_FLOAT, 0, np.ascontiguousarray(verts, np.float32))
@@ -161,6 +169,8 @@ def _display_list(verts: np.ndarray, norms: np.ndarray) -> int:
     GL.glDrawArrays(GL.GL_TRIANGLES, 0, len(verts))
     GL.glDisableClientState(GL.GL_NORMAL_ARRAY)
     GL.glDisableClientState(GL.GL_VERTEX_ARRAY)
+    if not closed:
+        GL.glEnable(GL.GL_CULL_FACE)
     GL.glEndList()
     return index
 
