@@ -86,7 +86,7 @@ output:
 def test_run_with_frames_writes_every_nth_frame_at_the_asked_size(invoke, write_scene,
                                                                    tmp_path):
     out = tmp_path / "frames"
-    (out.mkdir())
+    out.mkdir()
     (out / "frame_000009.png").write_bytes(b"stale, from a longer run")
     (out / "notes.txt").write_text("mine")
     result = invoke("run", write_scene(STATIC), "--frames", out, "--profile")
@@ -167,3 +167,26 @@ print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in ("OpenGL", 
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=REPO, check=True)
     assert json.loads(out.stdout) == []
+
+
+def test_a_frame_that_cannot_be_written_fails_the_run_cleanly(invoke, write_scene, tmp_path,
+                                                              monkeypatch):
+    from vrsim_cli.errors import OutputError
+    from vrsim_cli.writers.atomic import AtomicFile
+
+    def full_disk(self, data):
+        raise OutputError(f"cannot write {self.path}: No space left on device")
+
+    monkeypatch.setattr(AtomicFile, "write", full_disk)
+    out = tmp_path / "frames"
+    result = invoke("run", write_scene(STATIC), "--frames", out)
+    assert result.exit_code == 1
+    assert "frame_000000.png: No space left on device" in result.stderr
+    assert "Traceback" not in result.output
+    assert list(out.iterdir()) == []  # no half-written image, no temporary file
+
+
+def test_frames_must_be_a_folder(invoke, write_scene, tmp_path):
+    (tmp_path / "taken").write_text("a file")
+    result = invoke("run", write_scene(STATIC), "--frames", tmp_path / "taken")
+    assert result.exit_code == 2 and "is a file" in result.stderr
