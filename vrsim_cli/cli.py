@@ -151,9 +151,11 @@ def _output_target(output: str | None, fmt: str | None):
 @click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
 @click.option("--frames", "frames_dir", type=click.Path(file_okay=False), help="Render PNG "
               "frames into this folder (off-screen, OSMesa). Overrides output.frames.dir.")
+@click.option("--video", type=click.Path(dir_okay=False), help="Also make a video of the "
+              "frames: .mp4 or .gif (needs frames; pip install 'vrsim-cli[video]').")
 @_reports_errors
 def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet,
-        frames_dir):
+        frames_dir, video):
     """Run SCENE_FILE and write its trajectory."""
     from vrsim_cli.loop import run as run_loop
     from vrsim_cli.model import compile_model
@@ -167,7 +169,7 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         ("integrator",): (integrator, "--integrator"),
         ("output", "frames", "dir"): (frames_dir, "--frames")})
     model = compile_model(scene, output_override=target)
-    frames = _open_frames(model)  # before simulating: a missing OSMesa fails at once
+    frames = _open_frames(model, video)  # before simulating: a missing OSMesa fails at once
     say = (lambda *a, **k: None) if quiet else click.echo
     if model.dt != model.dt_requested:
         say(f"note: dt = {model.dt_requested:g} s does not divide the frame interval "
@@ -210,7 +212,7 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     _summary(model, result, say, profile, realtime)
     if frames is not None:
         say(f"frames: {frames.images} images of {model.frames.width}x{model.frames.height} px "
-            f"-> {model.frames.dir}")
+            f"-> {model.frames.dir}" + (f", video {video}" if video else ""))
     if result.interrupted:
         name = signal.Signals(signals.received).name
         click.echo(f"interrupted by {name} at t = {result.state.t:.6g} s; output finalised",
@@ -218,17 +220,27 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         sys.exit(128 + signals.received)
 
 
-def _open_frames(model):
+def _open_frames(model, video: str | None):
     """The frames writer of the run (stage 3), or None. Raises RenderUnavailable (exit 2)
     when OSMesa or PyOpenGL is missing; OpenGL is imported here and nowhere else."""
     if model.frames is None:
+        if video is not None:
+            raise click.UsageError("--video needs frames: add --frames DIR (or "
+                                   "output.frames.dir in the scene)")
         return None
     from vrsim_cli.render import open_renderer, time_label
     from vrsim_cli.writers.frames import FramesWriter
 
     spec = model.frames
+    if video is not None:
+        from vrsim_cli.writers.video import check_video
+        check_video(Path(video))
     renderer = open_renderer(model, spec.width, spec.height, spec.camera)
-    return FramesWriter(model, spec, renderer, label=time_label)
+    sink = None
+    if video is not None:
+        from vrsim_cli.writers.video import VideoWriter
+        sink = VideoWriter(Path(video), fps=model.frame_rate / spec.every)
+    return FramesWriter(model, spec, renderer, label=time_label, video=sink)
 
 
 def _summary(model, result, say, profile: bool, realtime: bool) -> None:

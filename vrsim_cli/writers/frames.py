@@ -25,13 +25,15 @@ FRAME_PATTERN = re.compile(r"frame_(\d{6})\.png")
 class FramesWriter:
     """Called once per loop frame (and once for the initial state) with the state; renders
     and writes every `spec.every`-th frame. `renderer` has `render(state, overlay)` and
-    `close()` (see `render.open_renderer`)."""
+    `close()` (see `render.open_renderer`); `video`, if given, receives every image too
+    (see `writers.video.VideoWriter`)."""
 
-    def __init__(self, model: Model, spec: FramesSpec, renderer, label=None):
+    def __init__(self, model: Model, spec: FramesSpec, renderer, label=None, video=None):
         self.model = model
         self.spec = spec
         self.renderer = renderer
         self.label = label
+        self.video = video
         self.images = 0
         try:
             spec.dir.mkdir(parents=True, exist_ok=True)
@@ -50,11 +52,15 @@ class FramesWriter:
             out.commit()
         finally:
             out.discard()
+        if self.video is not None:
+            self.video.append(image)
         self.images += 1
 
     def close(self) -> None:
-        """Free the renderer and remove stale frames of an earlier run."""
+        """Free the renderer, finish the video, remove stale frames of an earlier run."""
         self.renderer.close()
+        if self.video is not None:
+            self.video.close()
         for path in self.spec.dir.iterdir():
             match = FRAME_PATTERN.fullmatch(path.name)
             if match and int(match.group(1)) >= self.images:
@@ -65,6 +71,8 @@ class FramesWriter:
 
     def abort(self) -> None:
         self.renderer.close()
+        if self.video is not None:
+            self.video.abort()
 
 
 def frame_paths(folder: Path) -> list[Path]:
