@@ -138,20 +138,22 @@ def test_particles_appear_from_their_emission_on():
                  "position: [0, 1, 0]}")
     text += ("emitters: [{name: p, position: [1.0, 1.6, 0], direction: [0, 1, 0], speed: 0, "
              "count: 2, rate: 1, mass: 1, radius: 0.3, color: [1, 0, 0]}]\n")
-    text += (f"output: {{frames: {{camera: {{position: {EYE}, look_at: {TARGET}, "
-             f"fov_deg: {FOV}}}}}}}\n")
     from vrsim_cli.camera import Camera
     model = compile_model(parse_scene(text))
     renderer = open_renderer(model, W, H, Camera.looking_at(EYE, TARGET, UP, FOV))
     state = make_state(model)
+    second = model.body_index["p.0001"]
+    emitted_at = int(model.body_emit_step[second])
+    assert emitted_at == round(1.0 / model.dt)  # rate 1 per second: the second leaves at 1 s
+    pos = state.body_pos.copy()
+    pos[second] = [2.0, 1.6, -0.5]  # apart from the first, so each has its own pixels
+    state = state.replace(body_pos=pos)
     red = lambda img: int(((img[..., 0] > 40) & (img[..., 1] == 0)).sum())  # noqa: E731
-    first = red(renderer.render(state))  # particle 0 leaves at t = 0: drawn
-    renderer_model_steps = int(model.body_emit_step[model.body_index["p.0001"]])
-    both = red(renderer.render(state.replace(step=renderer_model_steps)))
+    before = red(renderer.render(state.replace(step=emitted_at - 1)))
+    after = red(renderer.render(state.replace(step=emitted_at)))
     renderer.close()
-    assert first > 100
-    assert both == first  # the second particle sits on the first: same pixels, now shown
-    assert renderer_model_steps == round(1.0 / model.dt)
+    assert before > 100  # the first particle, emitted at t = 0
+    assert after > 1.5 * before  # now the second one too
 
 
 def test_time_overlay_is_drawn_top_left_and_only_there():

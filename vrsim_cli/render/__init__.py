@@ -50,8 +50,8 @@ def open_renderer(model, width: int, height: int, camera: Camera | None = None):
     (for mesh shapes) trimesh is missing."""
     if camera is None:
         camera = default_camera(model, width, height)
-    platform = sys.modules.get("OpenGL.platform")
-    if platform is not None and "osmesa" not in type(platform.PLATFORM).__module__:
+    loaded = getattr(sys.modules.get("OpenGL.platform"), "PLATFORM", None)
+    if loaded is not None and "osmesa" not in type(loaded).__module__:
         raise RenderUnavailable("OpenGL was already loaded for another platform in this "
                                 "process")
     problem = _probe()
