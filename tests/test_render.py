@@ -76,6 +76,25 @@ def test_red_sphere_appears_at_its_projected_pixel():
         np.testing.assert_allclose(pixel, BACKGROUND, atol=BACKGROUND_TOL)
 
 
+def test_a_camera_given_per_image_moves_the_view():
+    from vrsim_cli.camera import Camera
+    model = compile_model(parse_scene(scene(
+        f"{{name: ball, type: static, shape: {{type: sphere, radius: {RED_RADIUS}}}, "
+        f"position: {RED_AT}, color: [1, 0, 0]}}")))
+    renderer = open_renderer(model, W, H, Camera.looking_at(EYE, TARGET, UP, FOV))
+    state = make_state(model)
+    eye2, target2 = [-1.0, 2.5, 2.0], [0.8, 1.7, -0.2]
+    moved = renderer.render(state, camera=Camera.looking_at(eye2, target2, UP, 40.0))
+    kept = renderer.render(state)  # the last camera stays
+    renderer.close()
+    for image in (moved, kept):
+        red = (image[..., 0] > 40) & (image[..., 1] == 0) & (image[..., 2] == 0)
+        rows, cols = np.nonzero(red)
+        (x, y), = pinhole(eye2, target2, UP, 40.0, W, H, [RED_AT])[0]
+        # As in the test above: ellipse offset and pixel grid stay under 1 px.
+        assert abs(cols.mean() + 0.5 - x) < 1.0 and abs(rows.mean() + 0.5 - y) < 1.0
+
+
 def test_box_capsule_and_cylinder_show_their_colours():
     bodies = {
         "box": ("{type: box, size: [0.4, 0.3, 0.5]}", [0.2, 1.3, 0.0], [0, 1, 0], 1),

@@ -94,18 +94,28 @@ class OsmesaRenderer:
         GL.glEnable(GL.GL_LIGHT0)
         GL.glColorMaterial(GL.GL_FRONT_AND_BACK, GL.GL_AMBIENT_AND_DIFFUSE)
         GL.glEnable(GL.GL_COLOR_MATERIAL)
+        self._use_camera(self.camera)
+
+    def _use_camera(self, camera: Camera) -> None:
         GL.glMatrixMode(GL.GL_PROJECTION)
-        GL.glLoadMatrixd(self.camera.projection_matrix(self.width / self.height).T)
+        GL.glLoadMatrixd(camera.projection_matrix(self.width / self.height).T)
         GL.glMatrixMode(GL.GL_MODELVIEW)
         GL.glLoadIdentity()  # the light is given in the camera frame: it moves with it
         GL.glLightfv(GL.GL_LIGHT0, GL.GL_POSITION, LIGHT_DIR_EYE)
-        self.view = self.camera.view_matrix()
+        self.view = camera.view_matrix()
+        self.current = camera
 
     # ------------------------------------------------------------------ drawing
 
-    def render(self, state, overlay: str | None = None) -> np.ndarray:
-        """The image of `state`: (height, width, 3) uint8, row 0 at the top."""
+    def render(self, state, overlay: str | None = None,
+               camera: Camera | None = None) -> np.ndarray:
+        """The image of `state`: (height, width, 3) uint8, row 0 at the top.
+
+        `camera` (e.g. the observer's, which moves) replaces the renderer's camera from
+        this image on; None keeps the current one."""
         self._make_current()
+        if camera is not None and camera != self.current:
+            self._use_camera(camera)
         GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
         GL.glDisable(GL.GL_LIGHTING)
         GL.glLoadMatrixd(self.view.T)
