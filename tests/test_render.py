@@ -208,3 +208,16 @@ def test_missing_pyopengl_is_reported_with_the_install_commands(monkeypatch):
     assert "PyOpenGL is not installed" in message
     assert "apt-get install libosmesa6" in message and "pip install 'vrsim-cli[render]'" in message
     assert info.value.exit_code == 2
+
+
+def test_default_framing_follows_the_free_flight_in_closed_form():
+    from vrsim_cli.render.geometry import flight_points
+
+    model = compile_model(parse_scene(
+        "vrsim: 1\nduration: 2\ngravity: [0, -10, 0]\nbodies:\n"
+        "  - {name: ball, mass: 1, position: [0, 1, 0], velocity: [3, 4, 0]}\n"
+        "  - {name: cart, type: kinematic, position: [1, 0, 0], velocity: [0, 0, 1]}\n"))
+    # Kinematic: p0 + v t at t = 2. Ball: top at t = 4/10 -> (1.2, 1.8, 0); back on the
+    # ground y = 0 at t = (4 + sqrt(16 + 2 * 10 * 1)) / 10 = 1 -> (3, 0, 0).
+    np.testing.assert_allclose(flight_points(model),
+                               [[1, 0, 2], [1.2, 1.8, 0], [3, 0, 0]], atol=1e-12)

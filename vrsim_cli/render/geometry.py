@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.model import BODY_KINEMATIC
 from vrsim_cli.spatial import quat_to_matrix
 
 SPHERE, BOX, CYLINDER, QUAD = "sphere", "box", "cylinder", "quad"
@@ -153,8 +154,8 @@ def bounding_spheres(model, dl: DrawList) -> tuple[np.ndarray, np.ndarray]:
     """Points (n, 3) m and radii (n,) m whose union holds every part at t = 0 that a
     camera should see: the two extreme corners of each part's world-aligned box.
 
-    Planes are left out (they are infinite). A moving body also contributes the top of its
-    free flight under gravity (forces ignored): the fountain's spray, a thrown ball's apex.
+    Planes are left out (they are infinite). Moving bodies add the points of
+    `flight_points`: the fountain's spray, a thrown ball's apex and landing.
     """
     world = body_transforms(model.body_pos0, model.body_quat0)
     keep = dl.part_body >= 0
@@ -164,14 +165,35 @@ def bounding_spheres(model, dl: DrawList) -> tuple[np.ndarray, np.ndarray]:
                     dtype=float).reshape(-1, 3)[keep]
     reach = np.einsum("nij,nj->ni", np.abs(placed[:, :3, :3]), half)  # world-aligned box
     centres = np.concatenate([placed[:, :3, 3] - reach, placed[:, :3, 3] + reach])
-    radii = np.zeros(len(centres))
-    g = np.asarray(model.gravity)
-    g2 = float(g @ g)
-    if g2 > 0:
-        vel = model.body_vel0
-        t_top = np.clip(-(vel @ g) / g2, 0.0, model.duration)
-        tops = model.body_pos0 + vel * t_top[:, None] + 0.5 * g * t_top[:, None] ** 2
-        moving = model.body_inv_mass > 0
-        centres = np.concatenate([centres, tops[moving]])
-        radii = np.concatenate([radii, np.zeros(int(moving.sum()))])
-    return centres, radii
+    flight = flight_points(model)
+    return np.concatenate([centres, flight]), np.zeros(len(centres) + len(flight))
+
+
+def flight_points(model) -> np.ndarray:
+    """(k, 3) m: where the moving bodies go if nothing but gravity acts on them.
+
+    Dynamic bodies: the top of the free flight and the point where it comes back to the
+    ground height (0 along the up direction -g, or the start height if lower), both within
+    the run's duration. Kinematic bodies: their position at the end of the run. Height
+    along up: h(t) = h0 + w t - |g| t^2 / 2 with w = v0 . up, so the top is at t = w / |g|
+    and the landing at t = (w + sqrt(w^2 + 2 |g| (h0 - ground))) / |g|.
+    """
+    pos, vel, duration = model.body_pos0, model.body_vel0, model.duration
+    kinematic = model.body_type == BODY_KINEMATIC
+    points = [pos[kinematic] + vel[kinematic] * duration]
+    g = np.asarray(model.gravity, dtype=float)
+    g_norm = float(np.linalg.norm(g))
+    dynamic = model.body_inv_mass > 0
+    if g_norm > 0 and dynamic.any():
+        up = -g / g_norm
+        p0, v0 = pos[dynamic], vel[dynamic]
+        h0, w = p0 @ up, v0 @ up
+        ground = np.minimum(0.0, h0)
+        t_top = np.clip(w / g_norm, 0.0, duration)
+        t_land = np.clip((w + np.sqrt(w * w + 2.0 * g_norm * (h0 - ground))) / g_norm, 0.0,
+                         duration)
+        for t in (t_top, t_land):
+            points.append(p0 + v0 * t[:, None] + 0.5 * g * t[:, None] ** 2)
+    elif dynamic.any():
+        points.append(pos[dynamic] + vel[dynamic] * duration)
+    return np.concatenate(points).reshape(-1, 3)
