@@ -190,3 +190,13 @@ def test_frames_must_be_a_folder(invoke, write_scene, tmp_path):
     (tmp_path / "taken").write_text("a file")
     result = invoke("run", write_scene(STATIC), "--frames", tmp_path / "taken")
     assert result.exit_code == 2 and "is a file" in result.stderr
+
+
+def test_same_scene_gives_identical_frames(invoke, write_scene, tmp_path):
+    scene = write_scene(STATIC)
+    for folder in ("a", "b"):
+        assert invoke("run", scene, "--frames", tmp_path / folder, "-q").exit_code == 0
+    a = sorted((tmp_path / "a").iterdir())
+    b = sorted((tmp_path / "b").iterdir())
+    assert [p.name for p in a] == [p.name for p in b]
+    assert all(x.read_bytes() == y.read_bytes() for x, y in zip(a, b))
