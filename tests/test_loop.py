@@ -54,6 +54,17 @@ def test_stop_request_ends_the_run_at_a_frame_boundary():
     assert result.interrupted and result.frames == 3 and result.state.step == 30
 
 
+def test_render_runs_at_stage_3_with_the_initial_state_and_every_frame():
+    model = compile_model(parse_scene("vrsim: 1\nduration: 0.35\nframe_rate: 10\ndt: 0.01\n"
+                                      "bodies: [{name: a, mass: 1}]\n"))
+    seen = []
+    result = run(model, make_state(model), render=lambda s: seen.append(s.step))
+    # 0.35 s at 10 Hz: three whole frames and a last one of 5 steps.
+    assert seen == [0, 10, 20, 30, 35] and result.frames == 4
+    assert "render" in result.profile
+    assert "render" not in run(model, make_state(model)).profile
+
+
 @pytest.mark.parametrize("scenario", sorted(p.name for p in SCENARIOS.glob("*.yaml")))
 def test_same_scene_gives_bit_identical_outputs(scenario, tmp_path):
     model = compile_model(load_scene(SCENARIOS / scenario))

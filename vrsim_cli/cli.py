@@ -178,8 +178,13 @@ def _output_target(output: str | None, fmt: str | None):
               "missed frame deadlines.")
 @click.option("--profile", is_flag=True, help="Print the time spent in each loop stage.")
 @click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
+@click.option("--frames", "frames_dir", type=click.Path(file_okay=False), help="Render PNG "
+              "frames into this folder (off-screen, OSMesa). Overrides output.frames.dir.")
+@click.option("--video", type=click.Path(dir_okay=False), help="Also make a video of the "
+              "frames: .mp4 or .gif (needs frames; pip install 'vrsim-cli[video]').")
 @_reports_errors
-def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet):
+def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet,
+        frames_dir, video):
     """Run SCENE_FILE and write its trajectory."""
     from vrsim_cli.loop import run as run_loop
     from vrsim_cli.model import compile_model
@@ -192,8 +197,10 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         raise click.UsageError("the output would overwrite the scene file")
     scene = load_scene(scene_file).with_overrides({
         ("duration",): (duration, "--duration"), ("dt",): (dt, "--dt"),
-        ("integrator",): (integrator, "--integrator")})
+        ("integrator",): (integrator, "--integrator"),
+        ("output", "frames", "dir"): (frames_dir, "--frames")})
     model = compile_model(scene, output_override=target)
+    frames = _open_frames(model, video)  # before simulating: a missing OSMesa fails at once
     say = (lambda *a, **k: None) if quiet else click.echo
     for note in model.notes:
         say(f"note: {note}", err=True)
@@ -210,17 +217,21 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         try:
             result = run_loop(model, state, writer, realtime=realtime,
                               should_stop=lambda: signals.received is not None,
-                              on_frame=progress)
+                              on_frame=progress, render=frames)
         except SimulationError as exc:
             failure = exc  # finalise the output up to the last good state, then report
         except BaseException:  # an output error, or a bug: keep any previous file
             progress.clear()
             if writer is not None:
                 writer.abort()
+            if frames is not None:
+                frames.abort()
             raise
         finally:
             progress.clear()
-        if writer is not None:  # still under the handlers: a signal now cannot cut it off
+        if frames is not None:  # still under the handlers: a signal now cannot cut it off
+            frames.close()
+        if writer is not None:
             try:
                 writer.close()
             except VrsimError:
@@ -232,11 +243,37 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         click.echo(f"error: {failure}{kept}", err=True)
         sys.exit(failure.exit_code)
     _summary(model, result, say, profile, realtime)
+    if frames is not None:
+        say(f"frames: {frames.images} images of {model.frames.width}x{model.frames.height} px "
+            f"-> {model.frames.dir}" + (f", video {video}" if video else ""))
     if signals.received is not None:  # during the loop, or while the output was finalised
         name = signal.Signals(signals.received).name
         click.echo(f"interrupted by {name} at t = {result.state.t:.6g} s; output finalised",
                    err=True)
         sys.exit(128 + signals.received)
+
+
+def _open_frames(model, video: str | None):
+    """The frames writer of the run (stage 3), or None. Raises RenderUnavailable (exit 2)
+    when OSMesa or PyOpenGL is missing; OpenGL is imported here and nowhere else."""
+    if model.frames is None:
+        if video is not None:
+            raise click.UsageError("--video needs frames: add --frames DIR (or "
+                                   "output.frames.dir in the scene)")
+        return None
+    from vrsim_cli.render import open_renderer, time_label
+    from vrsim_cli.writers.frames import FramesWriter
+
+    spec = model.frames
+    if video is not None:
+        from vrsim_cli.writers.video import check_video
+        check_video(Path(video))
+    renderer = open_renderer(model, spec.width, spec.height, spec.camera)
+    sink = None
+    if video is not None:
+        from vrsim_cli.writers.video import VideoWriter
+        sink = VideoWriter(Path(video), fps=model.frame_rate / spec.every)
+    return FramesWriter(model, spec, renderer, label=time_label, video=sink)
 
 
 def _summary(model, result, say, profile: bool, realtime: bool) -> None:

@@ -6,7 +6,7 @@ One frame (at `frame_rate`):
      2.2 sensor-driven motion           (`navigation.step`, once per frame)
      2.1 dynamic motion                 (`dynamics.step`, `steps_per_frame` steps of `dt`)
      2.3 collision response             (the collision issues)
-  3. update the scene graph and render  (keyframes, frames: their issues)
+  3. update the scene graph and render  (keyframes: its issue; frames: `render`)
 Trajectory samples are taken at the output rate, on the physics-step grid; the final state
 is always written. Between frame boundaries the observer moves at the frame's constant
 velocity (`navigation.within_frame`), so samples at any rate are consistent. Each stage is
@@ -71,11 +71,14 @@ def check_state(model: Model, state: State) -> None:
 
 def run(model: Model, state: State, writer=None, *, realtime: bool = False,
         should_stop: Callable[[], bool] | None = None,
-        on_frame: Callable[[State], None] | None = None) -> RunResult:
+        on_frame: Callable[[State], None] | None = None,
+        render: Callable[[State], None] | None = None) -> RunResult:
     """Run `model` from `state` to the end (or until `should_stop()` is true at a frame).
 
     `writer` receives samples; it is not closed here. On a blow-up the last good state is
-    written (if it was not yet) before SimulationError propagates.
+    written (if it was not yet) before SimulationError propagates. `render` (stage 3, e.g.
+    a `writers.frames.FramesWriter`) is called with the initial state and after every
+    frame; it picks the frames it draws, so this module never imports OpenGL.
     """
     clock = time.perf_counter
     profile = {"sensors": 0.0, "navigation": 0.0, "dynamics": 0.0, "checks": 0.0,
@@ -105,8 +108,17 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
         profile["navigation"] += clock() - t0
         return s
 
+    def draw(s: State) -> None:
+        if render is not None:
+            t0 = clock()
+            render(s)
+            profile["render"] += clock() - t0
+
+    if render is not None:
+        profile["render"] = 0.0
     frame_start = frame_end = state
     sample(state)
+    draw(state)
     start = clock()
     # Overflow and NaN are detected by check_state, which names the body and time;
     # numpy's own warnings would only add noise.
@@ -142,7 +154,8 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
             if inputs is not None:  # the frame's end (or a run's last, partial frame)
                 state = result.state = observer_at(state, steps)
             result.frames += 1
-            # 3. scene graph and render: nothing to draw until those stages exist.
+            # 3. scene graph (keyframes: nothing yet) and render
+            draw(state)
             if realtime:
                 _pace(model, start, state, result)
             if on_frame is not None:

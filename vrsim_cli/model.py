@@ -21,6 +21,7 @@ import numpy as np
 from vrsim_cli.errors import InputError, Problem
 from vrsim_cli.geometry import ANALYTIC
 from vrsim_cli.model_observer import InputModel, ObserverModel, compile_input, compile_observer
+from vrsim_cli.frames_spec import FramesSpec, compile_frames
 from vrsim_cli.scene import Scene
 from vrsim_cli.spatial import (IDENTITY_QUAT, quat_from_axis_angle, quat_from_euler_deg,
                                quat_normalize, quat_rotating, unit)
@@ -93,6 +94,7 @@ class Model:
     inputs: InputModel | None = None  # sensor values per frame (loop stage 1)
     observer_obstacles: tuple = ()  # body indices the observer collides with and walks on
     notes: tuple = ()  # things the user should know about this run (printed, not errors)
+    frames: FramesSpec | None = None  # rendered PNG frames; None: the run renders nothing
 
     @property
     def n_body(self) -> int:
@@ -163,6 +165,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
             f"steps (dt = {dt:.6g} s)", "nearest rates that fit: "
             + ", ".join(f"{r:g}" for r in _fitting_rates(rate, dt, frame_rate)) + " Hz"))
     output = _output_spec(scene, out, output_override, max(every_steps, 1), problems)
+    frames = compile_frames(scene, problems)
 
     # --- bodies, then emitted particles
     names: list[str] = []
@@ -250,6 +253,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         observer_obstacles=tuple(i for i, (kind, shape) in enumerate(zip(kinds, shapes))
                                  if kind != BODY_DYNAMIC and shape is not None
                                  and shape["type"] in ANALYTIC) if observer else (),
+        frames=frames,
     )
 
 

@@ -1,0 +1,230 @@
+"""Frames on disk: `vrsim run --frames`, the PNG encoder, the scene key, a missing OSMesa."""
+
+from __future__ import annotations
+
+import math
+
+import json
+import struct
+import subprocess
+import sys
+import zlib
+
+import numpy as np
+import pytest
+
+from conftest import REPO
+from vrsim_cli.writers.png import encode_png
+
+
+def read_png(data: bytes) -> np.ndarray:
+    """A minimal PNG decoder written from the specification (8-bit RGB, no interlace, all
+    five filter types), independent of the encoder under test. Checks every CRC."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat, header = 8, b"", None
+    while pos < len(data):
+        (length,) = struct.unpack(">I", data[pos:pos + 4])
+        kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + length]
+        (crc,) = struct.unpack(">I", data[pos + 8 + length:pos + 12 + length])
+        assert crc == zlib.crc32(kind + body) & 0xFFFFFFFF, kind
+        if kind == b"IHDR":
+            header = struct.unpack(">IIBBBBB", body)
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + length
+    width, height, depth, colour, _, _, interlace = header
+    assert (depth, colour, interlace) == (8, 2, 0)
+    raw = zlib.decompress(idat)
+    stride, bpp = 3 * width, 3
+    out = np.zeros((height, stride), dtype=np.int64)
+    for y in range(height):
+        kind, line = raw[y * (stride + 1)], raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)]
+        prev = out[y - 1] if y else np.zeros(stride, dtype=np.int64)
+        row = out[y]
+        for x in range(stride):
+            a = row[x - bpp] if x >= bpp else 0
+            b, c = prev[x], (prev[x - bpp] if x >= bpp else 0)
+            if kind == 0:
+                pred = 0
+            elif kind == 1:
+                pred = a
+            elif kind == 2:
+                pred = b
+            elif kind == 3:
+                pred = (a + b) // 2
+            else:
+                p = a + b - c
+                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+                pred = a if pa <= pb and pa <= pc else (b if pb <= pc else c)
+            row[x] = (line[x] + pred) % 256
+    return out.reshape(height, width, 3).astype(np.uint8)
+
+
+def test_png_round_trips_through_an_independent_decoder():
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, (7, 11, 3), dtype=np.uint8)
+    image[3:] = image[2]  # flat rows, where the Up filter gives zeros
+    np.testing.assert_array_equal(read_png(encode_png(image)), image)
+
+
+def test_png_refuses_non_rgb_arrays():
+    with pytest.raises(ValueError, match="height, width, 3"):
+        encode_png(np.zeros((4, 4), dtype=np.uint8))
+
+
+STATIC = """
+vrsim: 1
+name: still
+duration: 0.5
+frame_rate: 20
+bodies:
+  - {name: ball, type: static, shape: {type: sphere, radius: 0.3}, position: [0, 1, 0],
+     color: [1, 0, 0]}
+output:
+  frames: {every: 3, width: 64, height: 48}
+"""
+
+
+def test_run_with_frames_writes_every_nth_frame_at_the_asked_size(invoke, write_scene,
+                                                                   tmp_path):
+    out = tmp_path / "frames"
+    out.mkdir()
+    (out / "frame_000009.png").write_bytes(b"stale, from a longer run")
+    (out / "notes.txt").write_text("mine")
+    result = invoke("run", write_scene(STATIC), "--frames", out, "--profile")
+    assert result.exit_code == 0, result.output
+    # 10 loop frames after the initial state; images at frames 0, 3, 6, 9.
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["frame_000000.png", "frame_000001.png", "frame_000002.png",
+                     "frame_000003.png", "notes.txt"]
+    for name in names[:-1]:
+        image = read_png((out / name).read_bytes())
+        assert image.shape == (48, 64, 3)
+        assert image[24, 32, 0] > 100 and image[24, 32, 1] == 0  # the ball, seen by default
+    assert f"frames: 4 images of 64x48 px -> {out}" in result.stdout
+    assert "\nrender " in result.stdout  # its own stage in the profile
+
+
+def test_scene_frames_dir_is_relative_to_the_scene(invoke, write_scene, tmp_path):
+    scene = write_scene(STATIC.replace("every: 3", "every: 5, dir: shots"))
+    assert invoke("run", scene, "-q").exit_code == 0
+    assert sorted(p.name for p in (tmp_path / "shots").iterdir()) == [
+        "frame_000000.png", "frame_000001.png", "frame_000002.png"]
+
+
+@pytest.mark.parametrize("frames,message", [
+    ("{dir: ../up}", "output.frames.dir: path '../up' leaves the scene file's folder"),
+    ("{camera: {position: [1, 2, 3], look_at: [1, 2, 3]}}",
+     "output.frames.camera: the camera's position and look_at point coincide"),
+    ("{camera: {position: [0, 5, 0], look_at: [0, 0, 0]}}",
+     "output.frames.camera: the camera's up direction is parallel to its line of sight"),
+    ("{widht: 100}", "unknown key 'widht' (did you mean 'width'?)"),
+    ("{width: 8}", "output.frames.width: must be >= 16, got 8"),
+])
+def test_bad_frames_settings_are_located(invoke, write_scene, frames, message):
+    text = STATIC.replace("  frames: {every: 3, width: 64, height: 48}", f"  frames: {frames}")
+    result = invoke("validate", write_scene(text))
+    assert result.exit_code == 2 and message in result.stderr, result.stderr
+
+
+MISSING_OSMESA = """
+import ctypes, sys
+real_init = ctypes.CDLL.__init__
+def no_osmesa(self, name, *args, **kwargs):
+    if name and "OSMesa" in str(name):
+        raise OSError(f"{name}: cannot open shared object file: No such file or directory")
+    return real_init(self, name, *args, **kwargs)
+ctypes.CDLL.__init__ = no_osmesa  # as on a machine without libosmesa6
+from vrsim_cli.cli import main
+sys.argv = ["vrsim", "run", sys.argv[1], "--frames", sys.argv[2], "-o", sys.argv[3]]
+main()
+"""
+
+
+def test_missing_osmesa_fails_at_once_with_how_to_install(write_scene, tmp_path):
+    scene = write_scene(STATIC.replace("duration: 0.5", "duration: 1000"))
+    frames, traj = tmp_path / "frames", tmp_path / "traj.csv"
+    proc = subprocess.run([sys.executable, "-c", MISSING_OSMESA, str(scene), str(frames),
+                           str(traj)], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert "the OSMesa library (libOSMesa.so) was not found" in proc.stderr
+    assert "apt-get install libosmesa6" in proc.stderr
+    assert "pip install 'vrsim-cli[render]'" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not frames.exists() and not traj.exists()  # nothing simulated, nothing written
+
+
+def test_frames_settings_without_a_folder_never_import_opengl(write_scene, tmp_path):
+    scene = write_scene(STATIC)  # output.frames without dir: settings for --frames only
+    code = f"""
+import json, sys
+from vrsim_cli.cli import main
+sys.argv = ["vrsim", "run", {str(scene)!r}, "-q", "-o", {str(tmp_path / 'o.csv')!r}]
+try:
+    main()
+except SystemExit as exc:
+    assert exc.code in (0, None), exc.code
+print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in ("OpenGL", "trimesh"))))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=REPO, check=True)
+    assert json.loads(out.stdout) == []
+
+
+def test_a_frame_that_cannot_be_written_fails_the_run_cleanly(invoke, write_scene, tmp_path,
+                                                              monkeypatch):
+    from vrsim_cli.errors import OutputError
+    from vrsim_cli.writers.atomic import AtomicFile
+
+    def full_disk(self, data):
+        raise OutputError(f"cannot write {self.path}: No space left on device")
+
+    monkeypatch.setattr(AtomicFile, "write", full_disk)
+    out = tmp_path / "frames"
+    result = invoke("run", write_scene(STATIC), "--frames", out)
+    assert result.exit_code == 1
+    assert "frame_000000.png: No space left on device" in result.stderr
+    assert "Traceback" not in result.output
+    assert list(out.iterdir()) == []  # no half-written image, no temporary file
+
+
+def test_frames_must_be_a_folder(invoke, write_scene, tmp_path):
+    (tmp_path / "taken").write_text("a file")
+    result = invoke("run", write_scene(STATIC), "--frames", tmp_path / "taken")
+    assert result.exit_code == 2 and "is a file" in result.stderr
+
+
+def test_same_scene_gives_identical_frames(invoke, write_scene, tmp_path):
+    scene = write_scene(STATIC)
+    for folder in ("a", "b"):
+        assert invoke("run", scene, "--frames", tmp_path / folder, "-q").exit_code == 0
+    a = sorted((tmp_path / "a").iterdir())
+    b = sorted((tmp_path / "b").iterdir())
+    assert [p.name for p in a] == [p.name for p in b]
+    assert all(x.read_bytes() == y.read_bytes() for x, y in zip(a, b))
+
+
+def test_the_observer_is_the_default_camera(invoke, write_scene, tmp_path):
+    # The observer stands at (2, 1, 5) looking along -z; the red sphere at (0, 1, 0) is 2 m
+    # to its left at 5 m depth, so the pinhole camera puts its centre at
+    # u = w/2 - f * 2/5 px with f = (h/2) / tan(fov/2). The image centre is background (the
+    # renderer's own default camera would centre the only body).
+    scene = write_scene("""
+        vrsim: 1
+        duration: 0.5
+        frame_rate: 2
+        dt: 0.5
+        observer: {mode: fly, position: [2, 1, 5], direction: [0, 0, -1], fov_deg: 40}
+        bodies:
+          - {name: red, type: static, shape: {type: sphere, radius: 0.3}, position: [0, 1, 0],
+             color: [1, 0, 0]}
+        """)
+    out = tmp_path / "frames"
+    result = invoke("run", scene, "--frames", out)
+    assert result.exit_code == 0, result.output
+    image = read_png((out / "frame_000000.png").read_bytes())
+    h, w, _ = image.shape
+    f = (h / 2) / math.tan(math.radians(20))
+    u = round(w / 2 - f * 2 / 5)
+    assert image[h // 2, u][0] > 150 and image[h // 2, u][1] == 0  # red
+    assert image[h // 2, w // 2][1] > 200  # background, not red

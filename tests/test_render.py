@@ -1,0 +1,223 @@
+"""The render stage draws real frames through OSMesa; checked against the pinhole model."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from test_camera import pinhole
+from vrsim_cli.model import compile_model
+from vrsim_cli.render import RenderUnavailable, default_camera, open_renderer, time_label
+from vrsim_cli.render.font import GLYPH_H, text_mask
+from vrsim_cli.scene import parse_scene
+from vrsim_cli.state import make_state
+
+W, H = 320, 240
+BACKGROUND = np.array([0.92, 0.93, 0.95]) * 255  # the documented clear colour
+# OpenGL converts a float colour to 8 bits "rounding to nearest" with one unit of leeway
+# (GL spec, 2.3.5.2), so the background may be off by 1 per channel.
+BACKGROUND_TOL = 1
+
+EYE, TARGET, UP, FOV = [0.5, 1.0, 4.0], [1.0, 1.6, 0.0], [0.0, 1.0, 0.0], 50.0
+
+
+def render(text: str, camera=True, width=W, height=H, overlay=None):
+    if camera:
+        text += (f"output: {{frames: {{camera: {{position: {EYE}, look_at: {TARGET}, "
+                 f"fov_deg: {FOV}}}}}}}\n")
+    model = compile_model(parse_scene(text))
+    cam = None
+    if camera:
+        from vrsim_cli.camera import Camera
+        cam = Camera.looking_at(EYE, TARGET, UP, FOV)
+    renderer = open_renderer(model, width, height, cam)
+    try:
+        return model, renderer.render(make_state(model), overlay)
+    finally:
+        renderer.close()
+
+
+def scene(*bodies: str) -> str:
+    return "vrsim: 1\nduration: 0.1\nframe_rate: 10\nbodies:\n" + "".join(
+        f"  - {b}\n" for b in bodies)
+
+
+RED_AT = [1.3, 1.9, -0.5]
+RED_RADIUS = 0.25
+
+
+def test_red_sphere_appears_at_its_projected_pixel():
+    _, image = render(scene(f"{{name: ball, type: static, shape: {{type: sphere, radius: "
+                            f"{RED_RADIUS}}}, position: {RED_AT}, color: [1, 0, 0]}}"))
+    assert image.shape == (H, W, 3) and image.dtype == np.uint8
+    px, depth = pinhole(EYE, TARGET, UP, FOV, W, H, [RED_AT])
+    x, y = px[0]
+    centre = image[int(y), int(x)]
+    assert centre[0] > 150 and centre[1] == 0 and centre[2] == 0  # lit red, nothing else
+    red = (image[..., 0] > 40) & (image[..., 1] == 0) & (image[..., 2] == 0)
+    rows, cols = np.nonzero(red)
+    # The silhouette of an off-axis sphere is an ellipse whose centre lies about
+    # focal * alpha^2 * tan(theta) ~ 0.3 px outward of the projected centre (angular radius
+    # alpha ~ 0.06, off-axis angle theta ~ 0.2 here); the tessellation and the pixel grid
+    # add less than 0.2 px. So the red centroid is within 1 px of the pinhole projection.
+    assert abs(cols.mean() + 0.5 - x) < 1.0 and abs(rows.mean() + 0.5 - y) < 1.0
+    # Its area is pi (focal r / depth)^2 up to the 24-gon's 0.989 and the ellipse's
+    # stretch (< 2 % here): 5 % tells a wrong field of view (10 % off gives 20 %) apart.
+    focal = (H / 2) / np.tan(np.radians(FOV) / 2)
+    radius_px = focal * RED_RADIUS / np.sqrt(depth[0] ** 2 - RED_RADIUS ** 2)
+    assert red.sum() == pytest.approx(np.pi * radius_px ** 2, rel=0.05)
+    # Everything else is background: a ring 3 px outside the silhouette, and the corners.
+    angles = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    ring_x = (x + (radius_px + 3) * np.cos(angles)).astype(int)
+    ring_y = (y + (radius_px + 3) * np.sin(angles)).astype(int)
+    for pixel in list(image[ring_y, ring_x]) + [image[0, -1], image[0, 0]]:
+        np.testing.assert_allclose(pixel, BACKGROUND, atol=BACKGROUND_TOL)
+
+
+def test_a_camera_given_per_image_moves_the_view():
+    from vrsim_cli.camera import Camera
+    model = compile_model(parse_scene(scene(
+        f"{{name: ball, type: static, shape: {{type: sphere, radius: {RED_RADIUS}}}, "
+        f"position: {RED_AT}, color: [1, 0, 0]}}")))
+    renderer = open_renderer(model, W, H, Camera.looking_at(EYE, TARGET, UP, FOV))
+    state = make_state(model)
+    eye2, target2 = [-1.0, 2.5, 2.0], [0.8, 1.7, -0.2]
+    moved = renderer.render(state, camera=Camera.looking_at(eye2, target2, UP, 40.0))
+    kept = renderer.render(state)  # the last camera stays
+    renderer.close()
+    for image in (moved, kept):
+        red = (image[..., 0] > 40) & (image[..., 1] == 0) & (image[..., 2] == 0)
+        rows, cols = np.nonzero(red)
+        (x, y), = pinhole(eye2, target2, UP, 40.0, W, H, [RED_AT])[0]
+        # As in the test above: ellipse offset and pixel grid stay under 1 px.
+        assert abs(cols.mean() + 0.5 - x) < 1.0 and abs(rows.mean() + 0.5 - y) < 1.0
+
+
+def test_box_capsule_and_cylinder_show_their_colours():
+    bodies = {
+        "box": ("{type: box, size: [0.4, 0.3, 0.5]}", [0.2, 1.3, 0.0], [0, 1, 0], 1),
+        "pill": ("{type: capsule, radius: 0.12, length: 0.4}", [1.8, 1.7, -0.5], [0, 0, 1], 2),
+        "can": ("{type: cylinder, radius: 0.15, length: 0.3}", [0.9, 2.1, -1.0], [1, 1, 0], 0),
+    }
+    text = scene(*(f"{{name: {n}, type: static, shape: {s}, position: {p}, color: {c}}}"
+                   for n, (s, p, c, _) in bodies.items()))
+    _, image = render(text)
+    for name, (_, position, color, channel) in bodies.items():
+        (x, y), = pinhole(EYE, TARGET, UP, FOV, W, H, [position])[0]
+        pixel = image[int(y), int(x)].astype(int)
+        off = [c for c in range(3) if color[c] == 0]
+        assert pixel[channel] > 60, name  # lit in its colour
+        assert all(pixel[c] == 0 for c in off), (name, pixel)
+
+
+def test_mesh_shapes_are_drawn_through_trimesh(tmp_path):
+    stl = tmp_path / "tetra.stl"
+    corners = np.array([[0.3, -0.2, 0.2], [-0.3, -0.2, 0.2], [0, -0.2, -0.3], [0, 0.3, 0]])
+    faces = [(0, 2, 1), (0, 1, 3), (1, 2, 3), (2, 0, 3)]
+    lines = ["solid t"]
+    for a, b, c in faces:
+        n = np.cross(corners[b] - corners[a], corners[c] - corners[a])
+        lines += [f"facet normal {n[0]} {n[1]} {n[2]}", "outer loop"]
+        lines += [f"vertex {v[0]} {v[1]} {v[2]}" for v in corners[[a, b, c]]]
+        lines += ["endloop", "endfacet"]
+    stl.write_text("\n".join(lines + ["endsolid t"]) + "\n")
+    text = scene(f"{{name: tet, type: static, shape: {{type: mesh, file: tetra.stl, scale: 1.5}},"
+                 f" position: {RED_AT}, color: [1, 0, 1]}}")
+    text += (f"output: {{frames: {{camera: {{position: {EYE}, look_at: {TARGET}, "
+             f"fov_deg: {FOV}}}}}}}\n")
+    from vrsim_cli.camera import Camera
+    model = compile_model(parse_scene(text, base_dir=tmp_path))
+    renderer = open_renderer(model, W, H, Camera.looking_at(EYE, TARGET, UP, FOV))
+    image = renderer.render(make_state(model))
+    renderer.close()
+    (x, y), = pinhole(EYE, TARGET, UP, FOV, W, H, [RED_AT])[0]
+    pixel = image[int(y), int(x)]
+    assert pixel[0] > 60 and pixel[2] > 60 and pixel[1] == 0
+
+
+@pytest.mark.parametrize("dimension,shape,position", [
+    (3, "{type: sphere, radius: 0.3}", [2, 1, -1]),
+    (2, "{type: box, size: [0.5, 0.5]}", [3, 4]),
+])
+def test_default_camera_frames_a_lone_body_at_the_image_centre(dimension, shape, position):
+    text = scene(f"{{name: b, type: static, shape: {shape}, position: {position}, "
+                 f"color: [1, 0, 0]}}").replace("bodies:", f"dimension: {dimension}\nbodies:")
+    model, image = render(text, camera=False)
+    assert tuple(image[H // 2, W // 2]) != tuple(np.round(BACKGROUND))
+    assert image[H // 2, W // 2, 0] > 100 and image[H // 2, W // 2, 1] == 0
+    camera = default_camera(model, W, H)
+    if dimension == 2:
+        assert camera.forward == pytest.approx((0, 0, -1))
+
+
+def test_particles_appear_from_their_emission_on():
+    text = scene("{name: wall, type: static, shape: {type: box, size: [0.1, 0.1, 0.1]}, "
+                 "position: [0, 1, 0]}")
+    text += ("emitters: [{name: p, position: [1.0, 1.6, 0], direction: [0, 1, 0], speed: 0, "
+             "count: 2, rate: 1, mass: 1, radius: 0.3, color: [1, 0, 0]}]\n")
+    from vrsim_cli.camera import Camera
+    model = compile_model(parse_scene(text))
+    renderer = open_renderer(model, W, H, Camera.looking_at(EYE, TARGET, UP, FOV))
+    state = make_state(model)
+    second = model.body_index["p.0001"]
+    emitted_at = int(model.body_emit_step[second])
+    assert emitted_at == round(1.0 / model.dt)  # rate 1 per second: the second leaves at 1 s
+    pos = state.body_pos.copy()
+    pos[second] = [2.0, 1.6, -0.5]  # apart from the first, so each has its own pixels
+    state = state.replace(body_pos=pos)
+    red = lambda img: int(((img[..., 0] > 40) & (img[..., 1] == 0)).sum())  # noqa: E731
+    before = red(renderer.render(state.replace(step=emitted_at - 1)))
+    after = red(renderer.render(state.replace(step=emitted_at)))
+    renderer.close()
+    assert before > 100  # the first particle, emitted at t = 0
+    assert after > 1.5 * before  # now the second one too
+
+
+def test_time_overlay_is_drawn_top_left_and_only_there():
+    model, plain = render(scene("{name: b, type: static, shape: {type: sphere, radius: 0.2}, "
+                                "position: [1, 1.6, 0]}"))
+    _, labelled = render(scene("{name: b, type: static, shape: {type: sphere, radius: 0.2}, "
+                               "position: [1, 1.6, 0]}"), overlay=time_label(12.5))
+    assert time_label(12.5) == "t = 12.500 s"
+    changed_rows, changed_cols = np.nonzero((plain != labelled).any(axis=2))
+    scale = H // 240
+    mask = text_mask("t = 12.500 s", scale)
+    # Changes stay inside the text's box (its padding is 2 * scale on each side).
+    assert changed_rows.max() < 4 * scale + mask.shape[0] + 2 * scale
+    assert changed_cols.max() < 4 * scale + mask.shape[1] + 2 * scale
+    # The glyph pixels are dark text; the glyph for '1' occupies its column of pixels.
+    glyphs = labelled[4 * scale:4 * scale + GLYPH_H * scale, 4 * scale:4 * scale + mask.shape[1]]
+    assert (glyphs[mask] < 60).all()
+    assert (glyphs[~mask] > 150).all()
+
+
+def test_unknown_overlay_characters_are_refused():
+    with pytest.raises(KeyError):
+        text_mask("t = 1 h")
+
+
+def test_missing_pyopengl_is_reported_with_the_install_commands(monkeypatch):
+    model = compile_model(parse_scene(scene("{name: b, mass: 1}")))
+    monkeypatch.setitem(sys.modules, "OpenGL", None)  # as if PyOpenGL were not installed
+    monkeypatch.delitem(sys.modules, "vrsim_cli.render.osmesa", raising=False)
+    with pytest.raises(RenderUnavailable) as info:
+        open_renderer(model, 32, 32)
+    message = str(info.value)
+    assert "PyOpenGL is not installed" in message
+    assert "apt-get install libosmesa6" in message and "pip install 'vrsim-cli[render]'" in message
+    assert info.value.exit_code == 2
+
+
+def test_default_framing_follows_the_free_flight_in_closed_form():
+    from vrsim_cli.render.geometry import flight_points
+
+    model = compile_model(parse_scene(
+        "vrsim: 1\nduration: 2\ngravity: [0, -10, 0]\nbodies:\n"
+        "  - {name: ball, mass: 1, position: [0, 1, 0], velocity: [3, 4, 0]}\n"
+        "  - {name: cart, type: kinematic, position: [1, 0, 0], velocity: [0, 0, 1]}\n"))
+    # Kinematic: p0 + v t at t = 2. Ball: top at t = 4/10 -> (1.2, 1.8, 0); back on the
+    # ground y = 0 at t = (4 + sqrt(16 + 2 * 10 * 1)) / 10 = 1 -> (3, 0, 0).
+    np.testing.assert_allclose(flight_points(model),
+                               [[1, 0, 2], [1.2, 1.8, 0], [3, 0, 0]], atol=1e-12)

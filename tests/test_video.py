@@ -1,0 +1,59 @@
+"""`vrsim run --frames DIR --video OUT.mp4|OUT.gif`: the frames as one video file."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from test_frames import STATIC, read_png
+
+
+@pytest.mark.parametrize("name", ["run.mp4", "run.gif"])
+def test_video_holds_every_image_at_the_frame_rate(invoke, write_scene, tmp_path, name):
+    import imageio.v2 as imageio
+
+    video = tmp_path / name
+    result = invoke("run", write_scene(STATIC), "--frames", tmp_path / "f", "--video", video)
+    assert result.exit_code == 0, result.output
+    assert f"video {video}" in result.stdout
+    frames = imageio.mimread(video)
+    assert len(frames) == 4  # the images of frames 0, 3, 6 and 9, as in the folder
+    assert frames[0].shape[:2] == (48, 64)
+    png = read_png((tmp_path / "f" / "frame_000000.png").read_bytes())
+    if name.endswith(".gif"):
+        # GIF is paletted: the ball's red survives within a palette step. 3 images per
+        # 1/20 s frame -> 150 ms per image, stored in whole centiseconds.
+        assert np.abs(frames[0][..., :3].astype(int) - png).mean() < 3
+        from PIL import Image
+        assert Image.open(video).info["duration"] == 150
+    else:
+        # H.264 is lossy (4:2:0 chroma, quality 8): the mean error stays a few levels.
+        assert np.abs(frames[0].astype(int) - png).mean() < 8
+        assert imageio.get_reader(video).get_meta_data()["fps"] == pytest.approx(20 / 3,
+                                                                               rel=1e-3)
+    assert [p.name for p in tmp_path.iterdir() if "partial" in p.name] == []
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--video", "out.mp4"], "--video needs frames: add --frames DIR"),
+    (["--frames", "f", "--video", "out.avi"], "cannot tell the format of 'out.avi'"),
+    (["--frames", "f", "--video", "/nonexistent-dir/out.mp4"], "does not exist"),
+])
+def test_video_usage_errors_exit_2(invoke, write_scene, args, message):
+    result = invoke("run", write_scene(STATIC), *args)
+    assert result.exit_code == 2 and message in result.stderr, result.stderr
+
+
+def test_missing_imageio_is_reported_before_the_run(invoke, write_scene, tmp_path,
+                                                    monkeypatch):
+    monkeypatch.setitem(sys.modules, "imageio", None)  # as if the extra were not installed
+    monkeypatch.delitem(sys.modules, "imageio.v2", raising=False)
+    out = tmp_path / "traj.csv"
+    result = invoke("run", write_scene(STATIC), "--frames", tmp_path / "f", "--video",
+                    tmp_path / "v.mp4", "-o", out)
+    assert result.exit_code == 2
+    assert "--video needs imageio, which is not installed: pip install 'vrsim-cli[video]'" \
+        in result.stderr
+    assert not out.exists() and not (tmp_path / "f").exists()
