@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vrsim_cli.animation import compile_animation
 from vrsim_cli.errors import InputError, Problem
 from vrsim_cli.geometry import ANALYTIC
 from vrsim_cli.model_observer import InputModel, ObserverModel, compile_input, compile_observer
@@ -92,6 +93,9 @@ class Model:
     observer: ObserverModel | None = None  # None: the scene has no observer
     inputs: InputModel | None = None  # sensor values per frame (loop stage 1)
     observer_obstacles: tuple = ()  # body indices the observer collides with and walks on
+    # Keyframes, drives and the scene graph (animation.Animation); None: nothing animated.
+    # The pos0/quat0 of a body with a parent are local (relative to the parent's frame).
+    animation: object = None
 
     @property
     def n_body(self) -> int:
@@ -206,6 +210,9 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
     frame_times = np.arange(n_frames) * steps_per_frame * dt
     observer = compile_observer(scene, gravity, problems)
     inputs = compile_input(scene, frame_times, observer, problems)
+    n_scene_bodies = len(data.get("bodies") or [])
+    animation = compile_animation(scene, dim, pos0[:n_scene_bodies], quat0[:n_scene_bodies],
+                                  problems)
 
     if problems:
         raise InputError(problems)
@@ -247,6 +254,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         observer_obstacles=tuple(i for i, (kind, shape) in enumerate(zip(kinds, shapes))
                                  if kind != BODY_DYNAMIC and shape is not None
                                  and shape["type"] in ANALYTIC) if observer else (),
+        animation=animation,
     )
 
 
