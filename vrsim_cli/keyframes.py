@@ -54,7 +54,8 @@ the first and the last key, S being the curve's length; the curve still passes t
 every key, but interior keys are reached when their share of the length is covered, not
 at their key times. Ease then warps the covered share of the length (a smooth start and
 stop on a constant-speed path). Arc length is integrated with 5-point Gauss-Legendre on
-32 pieces per segment and inverted with Newton's method (relative error below 1e-9).
+32 pieces per segment and inverted with Newton's method (position error below 1e-11 m
+in the tests).
 """
 
 from __future__ import annotations
@@ -68,7 +69,7 @@ from vrsim_cli.animation_spec import (COLOR, DEFAULT_MODE, ROTATION, VECTOR, tra
 from vrsim_cli.spatial import quat_from_euler_deg, quat_multiply, quat_to_matrix
 
 ARC_PIECES = 32  # sub-intervals per segment for the arc-length table
-NEWTON_STEPS = 2  # from a guess within ~1e-8 of a piece, quadratic convergence
+NEWTON_STEPS = 3  # guess off by <= 2e-4 m in tests; Newton: 4e-7, 3e-12, then round-off
 SQUAD_H = 1e-5  # central-difference step in the segment parameter for squad's rate
 # 5-point Gauss-Legendre nodes and weights on [0, 1]: exact for polynomials of degree 9.
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(5)
@@ -105,7 +106,7 @@ class Track:
     coeffs: np.ndarray | None = None
     omega: np.ndarray | None = None
     ctrl: np.ndarray | None = None
-    arc: tuple | None = None  # (knot_seg, knot_s, knot_len, knot_speed), (m + 1,) each
+    arc: tuple | None = None  # knot_seg, knot_s, knot_len (m + 1,); speed0, speed1 (m,)
 
     @property
     def start(self) -> float:
@@ -334,7 +335,7 @@ def _curve(track: Track, i, s):
 
 def _with_arc_table(track: Track) -> Track:
     """The track with its arc-length table: knots at ARC_PIECES pieces per segment, the
-    length covered at each knot and the curve's speed |dC/ds| there."""
+    length covered at each knot and the curve's speed |dC/ds| at each piece's ends."""
     n_seg = len(track.times) - 1
     knots_s = np.linspace(0.0, 1.0, ARC_PIECES + 1)
     seg = np.repeat(np.arange(n_seg), ARC_PIECES)
@@ -342,9 +343,10 @@ def _with_arc_table(track: Track) -> Track:
     knot_len = np.concatenate([[0.0], np.cumsum(_arc_pieces(track, seg, a, b))])
     knot_seg = np.append(seg, n_seg - 1)
     knot_s = np.append(a, 1.0)
-    _, d = _curve(track, knot_seg, knot_s)
-    knot_speed = np.linalg.norm(d, axis=1)
-    return dataclasses.replace(track, arc=(knot_seg, knot_s, knot_len, knot_speed))
+    # |dC/ds| at both ends of every piece, each from the piece's own segment (the speed
+    # per unit s jumps where segments of different durations meet)
+    speeds = [np.linalg.norm(_curve(track, seg, x)[1], axis=1) for x in (a, b)]
+    return dataclasses.replace(track, arc=(knot_seg, knot_s, knot_len, *speeds))
 
 
 def _arc_pieces(track, seg, a, b):
@@ -364,10 +366,10 @@ def _eval_arc(track: Track, u, dudt):
     """Constant speed along the curve: find s with length(0 -> s) = target.
 
     First guess: cubic Hermite interpolation of s(length) on the piece, whose end slopes
-    are ds/dlength = 1 / |dC/ds| at the knots (error about 1e-8 of a piece); then Newton
-    steps on length(s) - target with Gauss-Legendre lengths, which converge quadratically.
+    are ds/dlength = 1 / |dC/ds| at the piece's ends; then NEWTON_STEPS Newton steps on
+    length(s) - target with Gauss-Legendre lengths, which converge quadratically.
     """
-    knot_seg, knot_s, knot_len, knot_speed = track.arc
+    knot_seg, knot_s, knot_len, speed0, speed1 = track.arc
     values = track.values
     span = track.end - track.start
     frac, warp = EASE[track.ease]((u - track.start) / span)
@@ -379,11 +381,11 @@ def _eval_arc(track: Track, u, dudt):
     s0 = knot_s[k]
     s1 = np.where(knot_seg[k + 1] == seg, knot_s[k + 1], 1.0)
     piece = knot_len[k + 1] - knot_len[k]
-    ok = (piece > 0) & (knot_speed[k] > 0) & (knot_speed[k + 1] > 0)
+    ok = (piece > 0) & (speed0[k] > 0) & (speed1[k] > 0)
     x = np.where(ok, (target - knot_len[k]) / np.where(ok, piece, 1.0), 0.0)
     ds = s1 - s0
-    m0 = piece / np.where(ok, knot_speed[k], 1.0) / ds  # slopes in units of the piece
-    m1 = piece / np.where(ok, knot_speed[k + 1], 1.0) / ds
+    m0 = piece / np.where(ok, speed0[k], 1.0) / ds  # slopes in units of the piece
+    m1 = piece / np.where(ok, speed1[k], 1.0) / ds
     x2, x3 = x * x, x * x * x
     y = np.where(ok, (x3 - 2 * x2 + x) * m0 + (3 * x2 - 2 * x3) + (x3 - x2) * m1, x)
     s = np.clip(s0 + ds * y, s0, s1)
