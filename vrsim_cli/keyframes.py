@@ -66,7 +66,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from vrsim_cli.animation_spec import (COLOR, DEFAULT_MODE, ROTATION, VECTOR, track_issues)
-from vrsim_cli.spatial import quat_from_euler_deg, quat_multiply, quat_to_matrix
+from vrsim_cli.spatial import (quat_from_euler_deg, quat_left_matrix, quat_multiply,
+                               quat_to_matrix)
 
 ARC_PIECES = 32  # sub-intervals per segment for the arc-length table
 NEWTON_STEPS = 3  # guess off by <= 2e-4 m in tests; Newton: 4e-7, 3e-12, then round-off
@@ -91,7 +92,8 @@ class Track:
 
     times: (n,) s; values: (n, d) keys (aligned quaternions; colours as RGBA or HSVA with
     unwrapped hue); coeffs: (n - 1, 4, d) cubic a + b s + c s^2 + d s^3 per segment (cubic
-    modes); omega: (n - 1, 3) rad per unit s (slerp); ctrl: (n, 4) squad control points.
+    modes); omega: (n - 1, 3) rad per unit s (slerp); ctrl: (n, 4) squad control points;
+    half: (n - 1, 3) log(q_i^-1 q_{i+1}), left: (n - 1, 4, 4) L(q_i) (rotations).
     """
 
     kind: str
@@ -106,6 +108,8 @@ class Track:
     coeffs: np.ndarray | None = None
     omega: np.ndarray | None = None
     ctrl: np.ndarray | None = None
+    half: np.ndarray | None = None
+    left: np.ndarray | None = None
     arc: tuple | None = None  # knot_seg, knot_s, knot_len (m + 1,); speed0, speed1 (m,)
 
     @property
@@ -207,14 +211,18 @@ def _compile_rotation(quats, mode, common) -> Track:
         if np.dot(quats[i], quats[i - 1]) < 0:
             quats[i] = -quats[i]
     omega = ctrl = None
+    half = left = None
     if len(quats) > 1:
         rel = quat_multiply(_conj(quats[:-1]), quats[1:])  # q_i^-1 q_{i+1}
-        omega = np.einsum("nij,nj->ni", quat_to_matrix(quats[:-1]), 2 * _quat_log(rel))
+        half = _quat_log(rel)
+        left = quat_left_matrix(quats[:-1])
+        omega = np.einsum("nij,nj->ni", quat_to_matrix(quats[:-1]), 2 * half)
         if mode == "squad":
             closed = "loop" in (common["before"], common["after"]) and len(quats) > 2 and \
                 abs(abs(np.dot(quats[0], quats[-1])) - 1) < 1e-15
             ctrl = _squad_controls(quats, closed)
-    return Track(mode=mode, values=quats, omega=omega, ctrl=ctrl, **common)
+    return Track(mode=mode, values=quats, omega=omega, ctrl=ctrl, half=half, left=left,
+                 **common)
 
 
 def _squad_controls(q, closed) -> np.ndarray:
@@ -441,7 +449,12 @@ def _eval_rotation(track: Track, u, dudt):
     if track.mode == "step":
         value, rate = q[i], np.zeros((len(u), 3))
     elif track.mode == "slerp":
-        value = slerp(q[i], q[i + 1], s)
+        # q_i exp(s log r), r = q_i^-1 q_{i+1} = (cos(a/2), sin(a/2) n): with L(q_i) and
+        # the half-angle vector (a/2) n precomputed per segment, one matmul per time
+        half = track.half[i] * s[:, None]
+        angle = np.linalg.norm(half, axis=1, keepdims=True)
+        turn = np.concatenate([np.cos(angle), half * np.sinc(angle / np.pi)], axis=1)
+        value = (track.left[i] @ turn[:, :, None])[:, :, 0]
         # d/dt [q_i exp(s log r)] q^-1 = q_i (log r) q_i^-1 ds/dt: constant per segment
         rate = track.omega[i] * sdot[:, None]
     else:

@@ -29,7 +29,7 @@ import numpy as np
 
 from vrsim_cli.keyframes import evaluate
 from vrsim_cli.model import Model
-from vrsim_cli.spatial import quat_multiply, quat_to_matrix
+from vrsim_cli.spatial import quat_multiply, quat_rotation_matrices
 from vrsim_cli.state import State
 
 
@@ -113,14 +113,20 @@ def compose(anim, state: State, local) -> tuple:
             vel[body], angvel[body] = lvel[nodes], lang[nodes]
             continue
         par = anim.node_parent[nodes]
-        rot = quat_to_matrix(quat[par])
-        arm = np.einsum("nij,nj->ni", rot, lpos[nodes])
+        left, rot = quat_rotation_matrices(quat[par])
+        # one matmul turns the three local vectors into the parent's orientation
+        arm, v_own, w_own = np.moveaxis(rot @ np.stack([lpos[nodes], lvel[nodes],
+                                                        lang[nodes]], axis=-1), -1, 0)
+        w_par = angvel[par]
+        swirl = w_par[:, _YZX] * arm[:, _ZXY] - w_par[:, _ZXY] * arm[:, _YZX]  # w x arm
         pos[body] = pos[par] + arm
-        quat[body] = quat_multiply(quat[par], lquat[nodes])
-        vel[body] = vel[par] + np.cross(angvel[par], arm) + np.einsum("nij,nj->ni", rot,
-                                                                      lvel[nodes])
-        angvel[body] = angvel[par] + np.einsum("nij,nj->ni", rot, lang[nodes])
+        quat[body] = (left @ lquat[nodes][:, :, None])[:, :, 0]
+        vel[body] = vel[par] + swirl + v_own
+        angvel[body] = w_par + w_own
     return pos, quat, vel, angvel
+
+
+_YZX, _ZXY = [1, 2, 0], [2, 0, 1]  # cross product a x b = a_yzx b_zxy - a_zxy b_yzx
 
 
 def step(model: Model, state: State, local=None) -> State:
