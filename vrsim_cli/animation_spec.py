@@ -60,8 +60,11 @@ def track_issues(spec: dict, kind: str = VECTOR, *, width: int | tuple | None = 
     mode = spec.get("interpolation", DEFAULT_MODE[kind])
     if mode not in MODES[kind]:
         what = {ROTATION: "an orientation", COLOR: "a colour"}.get(kind, "this track")
-        yield (("interpolation",), f"'{mode}' is not available for {what}",
-               did_you_mean(mode, MODES[kind]) or "use one of " + ", ".join(MODES[kind]))
+        other = [k for k in MODES if k != kind and mode in MODES[k]]
+        hint = "use one of " + ", ".join(MODES[kind])
+        if not other:
+            hint = did_you_mean(mode, MODES[kind]) or hint
+        yield ("interpolation",), f"'{mode}' is not available for {what}", hint
     value_key = "values"
     if kind == ROTATION:
         given = [k for k in ("values", "euler_deg") if k in spec]
