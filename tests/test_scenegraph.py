@@ -17,6 +17,7 @@ from vrsim_cli.scenegraph import step
 from vrsim_cli.spatial import quat_to_matrix
 from vrsim_cli.state import make_state
 from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.writers import open_writer
 
 
 def world_state(text: str, t: float = 0.0):
@@ -153,14 +154,18 @@ def assert_velocity_is_derivative(track):
     assert bound < 0.02 * np.abs(track.vel).max()  # a bound that still says something
 
 
-def test_car_scenario_closes_its_circle_and_csv_velocities_are_derivatives(tmp_path):
-    model = compile_model(load_scene(SCENARIOS / "car.yaml"))
-    out = tmp_path / "car.csv"
-    from vrsim_cli.writers import open_writer
+def run_to_csv(scenario: str, folder):
+    """(model, trajectory read back) of a shipped scenario written as CSV."""
+    model = compile_model(load_scene(SCENARIOS / scenario))
+    out = folder / "out.csv"
     writer = open_writer(model, out, "csv")
     run(model, make_state(model), writer)
     writer.close()
-    traj = read_trajectory(out)
+    return model, read_trajectory(out)
+
+
+def test_car_scenario_closes_its_circle_and_csv_velocities_are_derivatives(tmp_path):
+    _, traj = run_to_csv("car.yaml", tmp_path)
     car = traj.tracks["car"]
     # one full turn of the heading in 4 s: back where it started, facing the same way
     assert np.allclose(car.pos[-1], car.pos[0], atol=1e-14)
@@ -169,13 +174,7 @@ def test_car_scenario_closes_its_circle_and_csv_velocities_are_derivatives(tmp_p
 
 
 def test_keyframed_velocities_in_the_csv_equal_the_curve_derivative(tmp_path):
-    model = compile_model(load_scene(SCENARIOS / "keyframes.yaml"))
-    out = tmp_path / "kf.csv"
-    from vrsim_cli.writers import open_writer
-    writer = open_writer(model, out, "csv")
-    run(model, make_state(model), writer)
-    writer.close()
-    traj = read_trajectory(out)
+    model, traj = run_to_csv("keyframes.yaml", tmp_path)
     rig = traj.tracks["camera_rig"]
     (_, position), = model.animation.pos_tracks
     (_, orientation, _), = model.animation.rot_tracks

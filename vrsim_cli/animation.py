@@ -3,9 +3,9 @@
 Layer 2, beside `model` (which calls `compile_animation` and keeps the result in
 `Model.animation`; None when the scene animates nothing, so other scenes pay nothing).
 
-Nodes are the bodies with a position or orientation track, a `drive` or a `parent`. Their `position` and
-`orientation` in the scene are local: relative to the parent's frame (the world for a
-body without a parent). Nodes are sorted into levels: level 0 has no parent, a node one
+Nodes are the bodies with a position or orientation track, a `drive` or a `parent`. Their
+`position` and `orientation` in the scene are local: relative to the parent's frame (the
+world for a body without a parent). Nodes are sorted into levels: level 0 has no parent, a node one
 level below its parent when the parent is a node, else level 1; the scene graph stage
 composes level by level, so a parent's world pose is always known before its children's.
 """

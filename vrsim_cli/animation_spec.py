@@ -151,8 +151,9 @@ def body_issues(bodies: list, dim: int) -> Iterator[Issue]:
         if "drive" in body:
             for key in ("position", "orientation", "angle_deg"):
                 if key in keyframes:
-                    yield (at + ("keyframes", key), f"a driven body gets its {key.replace('_deg', '')} "
-                           f"from the drive", "remove the track or the drive")
+                    what = key.replace("_deg", "")
+                    yield (at + ("keyframes", key), f"a driven body gets its {what} from the "
+                           "drive", "remove the track or the drive")
         parent = body.get("parent")
         if parent is not None and parent not in names:
             yield (at + ("parent",), f"no body named '{parent}'",

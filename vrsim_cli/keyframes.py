@@ -39,8 +39,8 @@ Interpolation (all hit every key exactly, as the slide demands):
 
 Colours interpolate as RGBA, or with `space: hsv` as (h, s, v, a) like X3D's
 ColorInterpolator; the hue takes the shorter way round the colour wheel (ties go towards
-decreasing hue) and grey keys (s = 0, no hue) borrow their neighbour's hue. Results are
-clipped to [0, 1].
+decreasing hue) and grey keys (s = 0, no hue) borrow the next coloured key's hue (the
+last one's after it). Results are clipped to [0, 1].
 
 Extrapolation outside [t_0, t_last] (`extrapolation: X` or `{before: X, after: Y}`):
 clamp (hold the end value, rate 0), loop (repeat with period t_last - t_0; t_0 + kT for
