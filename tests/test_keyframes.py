@@ -153,12 +153,20 @@ def test_gltf_cubicspline_by_hand():
     assert evaluate(tr, 2.0)[1] == pytest.approx(-1.0, abs=1e-15)  # = a1 at the end
 
 
+def test_hermite_colour_tangents_without_alpha():
+    tr = compile_track({"times": [0, 1], "values": [[0, 0, 0], [1, 0.5, 0]],
+                        "interpolation": "hermite", "in_tangents": [[0, 0, 0], [0, 0, 0]],
+                        "out_tangents": [[0, 0, 0], [0, 0, 0]]}, "color")
+    # zero tangents: smoothstep 3s^2 - 2s^3 = 0.5 at s = 0.5; alpha stays 1
+    assert np.allclose(evaluate(tr, 0.5)[0], [0.5, 0.25, 0, 1], atol=1e-15)
+
+
 def test_closed_loop_catmull_rom_is_c1_across_the_seam():
     square = [[0, 0], [1, 0], [1, 1], [0, 1], [0, 0]]
     tr = compile_track({"times": [0, 1, 2, 3, 4], "values": square,
                         "interpolation": "catmull-rom", "extrapolation": "loop"})
-    left, _ = one_sided_slopes(tr, 4.0)
-    _, right = one_sided_slopes(tr, 4.0)
+    left, right = one_sided_slopes(tr, 4.0)  # the right side is the next lap's start
+    assert np.abs(right - left).max() < 1e-6  # O(h^2) differences, as in the C1 test
     assert np.abs(evaluate(tr, 4.0 + 1e-12)[1] - evaluate(tr, 4.0)[1]).max() < 1e-9
     assert np.allclose(evaluate(tr, 0.0)[1], [0.5, -0.5])  # (P_1 - P_3) / 2 s, wrapped
 

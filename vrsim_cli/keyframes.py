@@ -164,14 +164,20 @@ def compile_track(spec: dict, kind: str = VECTOR) -> Track:
                                   float(spec.get("continuity", 0.0)),
                                   float(spec.get("bias", 0.0)), closed)
         coeffs = _hermite_coeffs(times, values, v_in, v_out)
-    elif mode == "hermite":
-        v_in = np.array(spec["in_tangents"], dtype=float).reshape(values.shape)
-        v_out = np.array(spec["out_tangents"], dtype=float).reshape(values.shape)
+    elif mode == "hermite":  # colours: tangents in the interpolation space (RGB or HSV)
+        v_in, v_out = (_padded(spec[key], values.shape) for key in ("in_tangents",
+                                                                    "out_tangents"))
         coeffs = _hermite_coeffs(times, values, v_in, v_out)
     track = Track(mode=mode, values=values, scalar=scalar, hsv=hsv, coeffs=coeffs, **common)
     if spec.get("arc_length") and len(times) > 1:
         track = _with_arc_table(track)
     return track
+
+
+def _padded(tangents, shape) -> np.ndarray:
+    """Tangents as an array of `shape`; missing trailing columns (a colour's alpha) are 0."""
+    given = np.array(tangents, dtype=float).reshape(shape[0], -1)
+    return np.hstack([given, np.zeros((shape[0], shape[1] - given.shape[1]))])
 
 
 def kb_tangents(times, values, tension=0.0, continuity=0.0, bias=0.0, closed=False):
