@@ -136,6 +136,8 @@ def step(model: Model, state: State, local=None) -> State:
     evaluates the tracks once per frame for all of the frame's step times); computed here
     when not given.
     """
+    if model.animation is None or not model.animation.has_motion:
+        return state
     if local is None:
         local = tuple(a[0] for a in local_motion(model, [state.t]))
     pos, quat, vel, angvel = compose(model.animation, state, local)
