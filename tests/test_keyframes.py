@@ -366,6 +366,11 @@ def test_times_must_increase_strictly():
     ({"times": [0, 1], "values": [[1, 0, 0, 0], [0, 0, 0, 0]]}, "rotation", ("values", 1)),
     ({"times": [0, 1], "values": [0, 1], "interpolation": "hermite"}, "vector", ()),
     ({"times": [0, 1], "values": [0, 1], "tension": 1}, "vector", ("tension",)),
+    ({"times": [0, 1], "values": [0, 1], "extrapolation": "bounce"}, "vector",
+     ("extrapolation",)),
+    ({"times": [0, 1], "values": [0, 1], "extrapolation": {"after": "lop"}}, "vector",
+     ("extrapolation", "after")),
+    ({"times": [0, 1], "values": [0, 1], "ease": "both"}, "vector", ("ease",)),
 ])
 def test_bad_specs_name_the_key(spec, kind, where):
     with pytest.raises(TrackError) as info:

@@ -95,6 +95,16 @@ def track_issues(spec: dict, kind: str = VECTOR, *, width: int | tuple | None = 
         elif key in spec:
             yield from _value_list(spec[key], (key,), len(times), _length(values[0])
                                    if isinstance(values, list) and values else width)
+    extrap = spec.get("extrapolation", "clamp")
+    for side, value in (extrap.items() if isinstance(extrap, dict) else [(None, extrap)]):
+        if side not in (None, "before", "after") or value not in EXTRAPOLATIONS:
+            path = ("extrapolation",) + ((side,) if side else ())
+            yield (path, f"expected {' or '.join(EXTRAPOLATIONS)} (or before/after), got "
+                   f"{value!r}", did_you_mean(str(value), EXTRAPOLATIONS))
+    for key, allowed in (("ease", EASES), ("space", ("rgb", "hsv"))):
+        if key in spec and spec[key] not in allowed:
+            yield ((key,), f"expected one of {', '.join(allowed)}, got {spec[key]!r}",
+                   did_you_mean(str(spec[key]), allowed))
     if "space" in spec and kind != COLOR:
         yield ("space",), "'space' (rgb or hsv) is for colour tracks", None
     if spec.get("arc_length"):
