@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vrsim_cli.animation import compile_animation
+from vrsim_cli.animation import Animation, compile_animation
 from vrsim_cli.errors import InputError, Problem
 from vrsim_cli.geometry import ANALYTIC
 from vrsim_cli.model_observer import InputModel, ObserverModel, compile_input, compile_observer
@@ -95,7 +95,7 @@ class Model:
     observer_obstacles: tuple = ()  # body indices the observer collides with and walks on
     # Keyframes, drives and the scene graph (animation.Animation); None: nothing animated.
     # The pos0/quat0 of a body with a parent are local (relative to the parent's frame).
-    animation: object = None
+    animation: Animation | None = None
 
     @property
     def n_body(self) -> int:
