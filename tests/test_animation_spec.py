@@ -161,7 +161,8 @@ def test_hermite_needs_tangents_and_kb_parameters_need_kb(write_scene):
         """)
     assert out == [
         "F:8:9: bodies[0].keyframes.position: missing 'out_tangents' for hermite "
-        "interpolation (glTF CUBICSPLINE: one in- and one out-tangent (value per s) per key)",
+        "interpolation (glTF CUBICSPLINE: one in- and one out-tangent (value per second) per "
+        "key)",
         "F:11:34: bodies[0].keyframes.position.in_tangents[1]: expected 3 numbers, got 2",
         "F:12:18: bodies[0].keyframes.position.tension: 'tension' is a kochanek-bartels "
         "parameter (set interpolation: kochanek-bartels)"]

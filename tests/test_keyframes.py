@@ -142,6 +142,21 @@ def test_kochanek_bartels_tangents_by_hand():
     assert left == pytest.approx(1.0, abs=1e-7) and right == pytest.approx(1.0, abs=1e-7)
 
 
+def test_kochanek_bartels_parameters_per_key():
+    # a kink only at key 1 (continuity 0.5 there), C1 at key 2
+    tr = compile_track({"times": [0, 1, 2, 3], "values": [0, 1, 3, 4],
+                        "interpolation": "kochanek-bartels", "continuity": [0, 0.5, 0, 0]})
+    left, right = one_sided_slopes(tr, 1.0)
+    assert left == pytest.approx(1.75, abs=1e-7) and right == pytest.approx(1.25, abs=1e-7)
+    left, right = one_sided_slopes(tr, 2.0)
+    assert abs(right - left) < 1e-7  # (4 - 1) / 2 on both sides
+    assert right == pytest.approx(1.5, abs=1e-7)
+    with pytest.raises(TrackError) as info:
+        compile_track({"times": [0, 1], "values": [0, 1], "interpolation": "kochanek-bartels",
+                       "bias": [0, 0, 1]})
+    assert info.value.issues[0][0] == ("bias",)
+
+
 def test_gltf_cubicspline_by_hand():
     # glTF 2.0 spec, Appendix C: v0 = 1, b0 = 2 (out), a1 = -1 (in), v1 = 3, td = 2.
     # At s = 0.5: (2/8 - 3/4 + 1) 1 + 2 (1/8 - 1/2 + 1/2) 2 + (-2/8 + 3/4) 3

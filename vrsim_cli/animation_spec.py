@@ -86,10 +86,12 @@ def track_issues(spec: dict, kind: str = VECTOR, *, width: int | tuple | None = 
         if key in spec and mode != "kochanek-bartels":
             yield ((key,), f"'{key}' is a kochanek-bartels parameter",
                    "set interpolation: kochanek-bartels")
+        elif key in spec and not _is_number(spec[key]):
+            yield from _value_list(spec[key], (key,), len(times), 1)
     for key in HERMITE_KEYS:
         if mode == "hermite" and key not in spec:
             yield ((), f"missing '{key}' for hermite interpolation",
-                   "glTF CUBICSPLINE: one in- and one out-tangent (value per s) per key")
+                   "glTF CUBICSPLINE: one in- and one out-tangent (value per second) per key")
         elif key in spec and mode != "hermite":
             yield (key,), f"'{key}' is for interpolation: hermite", None
         elif key in spec:

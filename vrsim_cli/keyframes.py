@@ -17,18 +17,19 @@ Interpolation (all hit every key exactly, as the slide demands):
 - step: C(t) = P_i on [t_i, t_{i+1}).
 - linear: the slide's C(t) = (1 - s) P_i + s P_{i+1}, s = (t - t_i) / (t_{i+1} - t_i).
   Constant velocity per segment; the velocity jumps at keys.
-- catmull-rom: cubic Hermite with tangent (P_{i+1} - P_{i-1}) / (t_{i+1} - t_{i-1}) (per s),
+- catmull-rom: cubic Hermite with tangent (P_{i+1} - P_{i-1}) / (t_{i+1} - t_{i-1}) (per second),
   i.e. Kochanek-Bartels with tension = continuity = bias = 0. C1 in time, also for
   unevenly spaced keys.
 - kochanek-bartels: tangents (Kochanek & Bartels 1984, eq. 8-9) with the paper's timing
-  adjustment, written per unit time: with a = P_i - P_{i-1}, b = P_{i+1} - P_i,
+  adjustment, written per unit time (T, C, B: one number per track or one per key); with
+  a = P_i - P_{i-1}, b = P_{i+1} - P_i,
     out_i = (1-T) [(1+B)(1+C) a + (1-B)(1-C) b] / (t_{i+1} - t_{i-1})
     in_i  = (1-T) [(1+B)(1-C) a + (1-B)(1+C) b] / (t_{i+1} - t_{i-1}).
   Missing neighbours at the ends are mirrored (P_{-1} = 2 P_0 - P_1), so the end tangent
   is the first chord's slope. With `loop` extrapolation and P_0 == P_last the curve is
   closed: the ends use the wrapped neighbours and the seam is C1 too.
 - hermite: glTF 2.0 CUBICSPLINE. Per key an in-tangent a_k, value v_k, out-tangent b_k
-  (value per s); on [t_k, t_{k+1}] with td = t_{k+1} - t_k:
+  (value per second); on [t_k, t_{k+1}] with td = t_{k+1} - t_k:
     p(s) = (2s^3 - 3s^2 + 1) v_k + td (s^3 - 2s^2 + s) b_k + (-2s^3 + 3s^2) v_{k+1}
            + td (s^3 - s^2) a_{k+1}.
 - orientations: step; slerp (shortest arc: consecutive keys are put in one hemisphere);
@@ -65,7 +66,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vrsim_cli.animation_spec import (COLOR, DEFAULT_MODE, ROTATION, VECTOR, track_issues)
+from vrsim_cli.animation_spec import COLOR, DEFAULT_MODE, KB_KEYS, ROTATION, VECTOR, track_issues
 from vrsim_cli.spatial import (quat_from_euler_deg, quat_left_matrix, quat_multiply,
                                quat_to_matrix)
 
@@ -160,9 +161,8 @@ def compile_track(spec: dict, kind: str = VECTOR) -> Track:
                                                                               values[-1])
     coeffs = None
     if mode in ("catmull-rom", "kochanek-bartels"):
-        v_in, v_out = kb_tangents(times, values, float(spec.get("tension", 0.0)),
-                                  float(spec.get("continuity", 0.0)),
-                                  float(spec.get("bias", 0.0)), closed)
+        v_in, v_out = kb_tangents(times, values, *(spec.get(key, 0.0) for key in KB_KEYS),
+                                  closed=closed)
         coeffs = _hermite_coeffs(times, values, v_in, v_out)
     elif mode == "hermite":  # colours: tangents in the interpolation space (RGB or HSV)
         v_in, v_out = (_padded(spec[key], values.shape) for key in ("in_tangents",
@@ -181,7 +181,10 @@ def _padded(tangents, shape) -> np.ndarray:
 
 
 def kb_tangents(times, values, tension=0.0, continuity=0.0, bias=0.0, closed=False):
-    """Kochanek-Bartels in- and out-tangents per unit time, (n, d) each (see module doc)."""
+    """Kochanek-Bartels in- and out-tangents per unit time, (n, d) each (see module doc).
+
+    tension, continuity, bias: one number for every key, or one per key (n,).
+    """
     n = len(times)
     if n == 1:
         zero = np.zeros_like(values)
@@ -196,7 +199,8 @@ def kb_tangents(times, values, tension=0.0, continuity=0.0, bias=0.0, closed=Fal
         next_p[-1], next_gap[-1] = values[1], gaps[0]
     a = values - prev_p
     b = next_p - values
-    t, c, bb = tension, continuity, bias
+    t, c, bb = (np.asarray(x, dtype=float).reshape(-1, 1) for x in (tension, continuity,
+                                                                     bias))
     span = (prev_gap + next_gap)[:, None]
     v_out = (1 - t) * ((1 + bb) * (1 + c) * a + (1 - bb) * (1 - c) * b) / span
     v_in = (1 - t) * ((1 + bb) * (1 - c) * a + (1 - bb) * (1 + c) * b) / span
