@@ -340,3 +340,12 @@ def test_chains_compose_like_homogeneous_matrices(chain):
         expected = expected @ local
         # products of up to 4 rotations and offsets up to 5 m: round-off below 1e-13
         assert np.allclose(homogeneous(model, state, f"n{k}"), expected, atol=1e-13)
+
+
+def test_cli_profile_shows_the_scene_graph_stage(invoke, tmp_path):
+    result = invoke("run", SCENARIOS / "car.yaml", "--profile", "-o", tmp_path / "car.csv")
+    assert result.exit_code == 0, result.output
+    assert any(line.startswith("scenegraph ") for line in result.stdout.splitlines())
+    result = invoke("run", SCENARIOS / "projectile.yaml", "--profile", "-o",
+                    tmp_path / "p.csv")
+    assert result.exit_code == 0 and "scenegraph" not in result.stdout
