@@ -6,7 +6,10 @@ One frame (at `frame_rate`):
      2.2 sensor-driven motion           (`navigation.step`, once per frame)
      2.1 dynamic motion                 (`dynamics.step`, `steps_per_frame` steps of `dt`)
      2.3 collision response             (the collision issues)
-  3. update the scene graph and render  (keyframes: its issue; frames: `render`)
+  3. update the scene graph and render  (`scenegraph.step`; frames: `render`)
+The scene graph stage (keyframes, drives, parents) runs after every physics step and once
+at t = 0, not only once per frame: physics then sees kinematic nodes where they are, and
+every output sample is exact (see scenegraph.py). Scenes without animation skip it.
 Trajectory samples are taken at the output rate, on the physics-step grid; the final state
 is always written. Between frame boundaries the observer moves at the frame's constant
 velocity (`navigation.within_frame`), so samples at any rate are consistent. Each stage is
@@ -21,7 +24,7 @@ from typing import Callable
 
 import numpy as np
 
-from vrsim_cli import dynamics, navigation, sensors
+from vrsim_cli import dynamics, navigation, scenegraph, sensors
 from vrsim_cli.errors import SimulationError
 from vrsim_cli.model import Model
 from vrsim_cli.state import State
@@ -88,6 +91,14 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
     result = RunResult(state=state, profile=profile)
     every = model.output.every_steps
     last_written = -1
+    # keyframes, drives or parents move bodies: the scene graph stage runs
+    animate = model.animation is not None and model.animation.has_motion
+    if animate:
+        profile["scenegraph"] = 0.0
+        t0 = clock()
+        state = scenegraph.step(model, state)  # 3. the first sample is exact too
+        profile["scenegraph"] += clock() - t0
+        result.state = state
 
     def sample(s: State) -> None:
         nonlocal last_written
@@ -140,12 +151,22 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
                 frame_end = navigation.step(model, state, inputs, frame_dt)
                 profile["navigation"] += clock() - t1
             steps = min(model.steps_per_frame, model.n_steps - state.step)
+            if animate:  # keyframes and drives, read once per frame for its step times
+                t0 = clock()
+                times = (state.step + 1 + np.arange(steps)) * model.dt
+                motion = scenegraph.local_motion(model, times)
+                profile["scenegraph"] += clock() - t0
             for k in range(steps):
                 t0 = clock()
                 new = dynamics.step(model, state)  # 2.1 dynamic motion
                 t1 = clock()
-                check_state(model, new)
                 profile["dynamics"] += t1 - t0
+                if animate:  # 2.1 kinematic motion and 3. scene graph at the new time
+                    new = scenegraph.step(model, new, tuple(a[k] for a in motion))
+                    t2 = clock()
+                    profile["scenegraph"] += t2 - t1
+                    t1 = t2
+                check_state(model, new)
                 profile["checks"] += clock() - t1
                 state = new
                 result.state = state
@@ -154,7 +175,7 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
             if inputs is not None:  # the frame's end (or a run's last, partial frame)
                 state = result.state = observer_at(state, steps)
             result.frames += 1
-            # 3. scene graph (keyframes: nothing yet) and render
+            # 3. scene graph: already at this time (after each step); render
             draw(state)
             if realtime:
                 _pace(model, start, state, result)

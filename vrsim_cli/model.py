@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vrsim_cli.animation import Animation, compile_animation
 from vrsim_cli.errors import InputError, Problem
 from vrsim_cli.geometry import ANALYTIC
 from vrsim_cli.model_observer import InputModel, ObserverModel, compile_input, compile_observer
@@ -95,6 +96,9 @@ class Model:
     observer_obstacles: tuple = ()  # body indices the observer collides with and walks on
     notes: tuple = ()  # things the user should know about this run (printed, not errors)
     frames: FramesSpec | None = None  # rendered PNG frames; None: the run renders nothing
+    # Keyframes, drives and the scene graph (animation.Animation); None: nothing animated.
+    # The pos0/quat0 of a body with a parent are local (relative to the parent's frame).
+    animation: Animation | None = None
 
     @property
     def n_body(self) -> int:
@@ -198,6 +202,9 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
     gravity = data.get("gravity", list(DEFAULT_GRAVITY[:dim]))
     observer = compile_observer(scene, gravity, problems)
     inputs = compile_input(scene, observer, problems)
+    n_scene_bodies = len(data.get("bodies") or [])
+    animation = compile_animation(scene, dim, pos0[:n_scene_bodies], quat0[:n_scene_bodies],
+                                  problems)
     if problems:
         raise InputError(problems)
 
@@ -254,6 +261,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
                                  if kind != BODY_DYNAMIC and shape is not None
                                  and shape["type"] in ANALYTIC) if observer else (),
         frames=frames,
+        animation=animation,
     )
 
 

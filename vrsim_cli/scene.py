@@ -24,6 +24,7 @@ from typing import Any, Iterator, Sequence
 
 import yaml
 
+from vrsim_cli.animation_spec import body_issues
 from vrsim_cli.errors import InputError, Problem, did_you_mean
 
 SCHEMA_RESOURCE = "scene.schema.json"
@@ -474,6 +475,9 @@ def _semantic_problems(scene: Scene) -> Iterator[Problem]:
             yield from vector(at + (key,))
         yield from nonzero(at + ("direction",), "an emitter's direction")
     yield from _observer_problems(scene, dim)
+    # Keyframes, drives and parents (the scene graph): checks in animation_spec.
+    for path, message, hint in body_issues(data.get("bodies") or [], dim):
+        yield scene.problem(path, message, hint)
     # Emitted particles are named NAME.0000 ...: they must not collide with body names.
     for i, emitter in enumerate(data.get("emitters") or []):
         for name, path in names.items():

@@ -159,3 +159,29 @@ def quat_slerp(a, b, s: float) -> np.ndarray:
         return quat_normalize(a + s * (b - a))
     theta = np.arccos(min(dot, 1.0))
     return (np.sin((1.0 - s) * theta) * a + np.sin(s * theta) * b) / np.sin(theta)
+
+
+# Quaternion products as 4x4 matrices, for batches of small arrays where numpy's per-call
+# cost dominates: a * b = quat_left_matrix(a) @ b = quat_right_matrix(b) @ a.
+_LEFT_IDX = np.array([[0, 1, 2, 3], [1, 0, 3, 2], [2, 3, 0, 1], [3, 2, 1, 0]])
+_LEFT_SIGN = np.array([[1, -1, -1, -1], [1, 1, -1, 1], [1, 1, 1, -1], [1, -1, 1, 1]], float)
+_RIGHT_SIGN = np.array([[1, -1, -1, -1], [1, 1, 1, -1], [1, -1, 1, 1], [1, 1, -1, 1]], float)
+
+
+def quat_left_matrix(q) -> np.ndarray:
+    """(..., 4) -> (..., 4, 4) matrix L(q) with L(q) p = q * p (Hamilton product)."""
+    return np.asarray(q, dtype=float)[..., _LEFT_IDX] * _LEFT_SIGN
+
+
+def quat_right_matrix(q) -> np.ndarray:
+    """(..., 4) -> (..., 4, 4) matrix R(q) with R(q) p = p * q (Hamilton product)."""
+    return np.asarray(q, dtype=float)[..., _LEFT_IDX] * _RIGHT_SIGN
+
+
+def quat_rotation_matrices(q) -> tuple:
+    """(..., 4) unit quaternions -> (L(q) (..., 4, 4), rotation matrices (..., 3, 3)):
+    q v q* = L(q) R(q*) v, whose lower-right 3x3 block is the rotation."""
+    q = np.asarray(q, dtype=float)
+    left = quat_left_matrix(q)
+    conj = q * np.array([1.0, -1.0, -1.0, -1.0])
+    return left, (left @ quat_right_matrix(conj))[..., 1:, 1:]

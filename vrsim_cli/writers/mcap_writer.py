@@ -131,6 +131,10 @@ class McapWriter:
             self.state_channel = self.writer.register_channel("/vrsim/state", "json", state)
             self.input_channel = self.writer.register_channel("/vrsim/input", "json", inputs) \
                 if model.observer is not None else None
+            self.animation = None  # colour/scale/attribute tracks: see mcap_animation.py
+            if model.animation is not None and model.animation.has_appearance:
+                from vrsim_cli.writers.mcap_animation import AnimationChannel
+                self.animation = AnimationChannel(self)
             self.writer.add_metadata("vrsim", {
                 "version": __version__, "scene_file": Path(model.scene_file).name,
                 "scene": model.scene_text, "dt": repr(model.dt),
@@ -157,6 +161,8 @@ class McapWriter:
             entities = [scene_entity(name, shape, color, ns) for name, shape, color in
                         zip(self.names, shapes, colors)]
             self._add(self.scene_channel, ns, {"deletions": [], "entities": entities})
+        if self.animation is not None:
+            self.animation.write(ns, state.t, scene_entity)
         stamp = _time(ns)
         self._add(self.tf_channel, ns, {"transforms": [
             {"timestamp": stamp, "parent_frame_id": "world", "child_frame_id": name,
