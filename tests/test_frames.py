@@ -228,3 +228,36 @@ def test_the_observer_is_the_default_camera(invoke, write_scene, tmp_path):
     u = round(w / 2 - f * 2 / 5)
     assert image[h // 2, u][0] > 150 and image[h // 2, u][1] == 0  # red
     assert image[h // 2, w // 2][1] > 200  # background, not red
+
+
+def test_frames_show_keyframed_colours_and_scales(invoke, write_scene, tmp_path):
+    # A sphere keyframed from red (t = 0) to green (t = 1 s), and scaled by 2: the centre
+    # pixel is red in the first image and green in the last; twice the radius covers a
+    # pixel that the unscaled sphere would not.
+    scene = write_scene("""
+        vrsim: 1
+        duration: 1
+        frame_rate: 2
+        dt: 0.5
+        bodies:
+          - name: lamp
+            type: kinematic
+            shape: {type: sphere, radius: 0.3}
+            position: [0, 1, 0]
+            color: [1, 0, 0]
+            keyframes:
+              color: {times: [0, 1], values: [[1, 0, 0], [0, 1, 0]]}
+              scale: {times: [0, 1], values: [2, 2]}
+        output:
+          frames: {camera: {position: [0, 1, 5], look_at: [0, 1, 0], fov_deg: 40}}
+        """)
+    out = tmp_path / "frames"
+    assert invoke("run", scene, "--frames", out).exit_code == 0
+    first, last = (read_png((out / f"frame_{k:06d}.png").read_bytes()) for k in (0, 2))
+    h, w, _ = first.shape
+    assert first[h // 2, w // 2][0] > 150 and first[h // 2, w // 2][1] == 0
+    assert last[h // 2, w // 2][1] > 150 and last[h // 2, w // 2][0] == 0
+    # 0.45 m off-centre at 5 m: inside the scaled sphere (0.6 m), outside the unscaled one
+    f = (h / 2) / math.tan(math.radians(20))
+    u = round(w / 2 + f * 0.45 / 5)
+    assert first[h // 2, u][0] > 100 and first[h // 2, u][1] == 0

@@ -16,6 +16,7 @@ os.environ["PYOPENGL_PLATFORM"] = "osmesa"
 import numpy as np  # noqa: E402
 from OpenGL import GL, osmesa  # noqa: E402
 
+from vrsim_cli.animation import appearance  # noqa: E402
 from vrsim_cli.camera import Camera  # noqa: E402
 from vrsim_cli.render.font import draw_text  # noqa: E402
 from vrsim_cli.render.geometry import (PRIMITIVES, body_transforms, draw_list)  # noqa: E402
@@ -125,6 +126,16 @@ class OsmesaRenderer:
 
         parts = self.parts
         world = body_transforms(state.body_pos, state.body_quat)
+        colors = parts.part_color
+        if self.model.animation is not None:  # keyframed colours and scales at this time
+            looks = appearance(self.model.animation, state.t)
+            if looks:
+                colors = colors.copy()
+                for body, look in looks.items():
+                    if "color" in look:
+                        colors[parts.part_body == body, :len(look["color"])] = look["color"]
+                    if "scale" in look:
+                        world[body] = world[body] @ np.diag([*look["scale"], 1.0])
         placed = np.where((parts.part_body >= 0)[:, None, None],
                           world[np.maximum(parts.part_body, 0)] @ parts.part_local,
                           parts.part_local)
@@ -136,11 +147,11 @@ class OsmesaRenderer:
         opaque = np.flatnonzero(shown & self.opaque)
         translucent = np.flatnonzero(shown & ~self.opaque)
         translucent = translucent[np.argsort(modelview[translucent, 2, 3])]
-        self._draw(opaque, modelview)
+        self._draw(opaque, modelview, colors)
         if len(translucent):
             GL.glEnable(GL.GL_BLEND)
             GL.glDepthMask(GL.GL_FALSE)
-            self._draw(translucent, modelview)
+            self._draw(translucent, modelview, colors)
             GL.glDepthMask(GL.GL_TRUE)
             GL.glDisable(GL.GL_BLEND)
         GL.glFinish()
@@ -150,10 +161,9 @@ class OsmesaRenderer:
             draw_text(image, overlay, 4 * scale, 4 * scale, scale)
         return image
 
-    def _draw(self, parts: np.ndarray, modelview: np.ndarray) -> None:
+    def _draw(self, parts: np.ndarray, modelview: np.ndarray, colors: np.ndarray) -> None:
         # Column-major for OpenGL: the transpose, made contiguous once for all parts.
         matrices = np.ascontiguousarray(modelview.transpose(0, 2, 1))
-        colors = self.parts.part_color
         lists = self.part_list
         load, color, call = GL.glLoadMatrixd, GL.glColor4dv, GL.glCallList
         for i in parts:
