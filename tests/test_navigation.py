@@ -363,3 +363,29 @@ def test_unreadable_tracker_file_is_located(invoke, write_scene, tmp_path, conte
                         "input: {tracker: head.csv}\n")
     result = invoke("run", scene)
     assert result.exit_code == 2 and message in result.stderr, result.stderr
+
+
+def test_attached_observer_rides_its_body_exactly(invoke, tmp_path):
+    out = tmp_path / "k.csv"
+    assert invoke("run", SCENARIOS / "keyframes.yaml", "-o", out).exit_code == 0
+    tracks = read_trajectory(out).tracks
+    rig, observer = tracks["camera_rig"], tracks["observer"]
+    for field in ("t", "pos", "quat", "vel", "angvel"):
+        assert np.array_equal(getattr(rig, field), getattr(observer, field)), field
+    # the rig at (0, 1.6, 4) looks along -z at the lamp's axis; the lamp's centre is 0.6 m
+    # lower at 4 m distance: atan(0.6 / 4) = 8.5 degrees below the view direction
+    forward = quat_rotate(observer.quat[0], [0, 0, -1])
+    to_lamp = np.array([0, 1, 0]) - observer.pos[0]
+    assert np.degrees(np.arccos(forward @ to_lamp / np.linalg.norm(to_lamp))) < 9
+
+
+@pytest.mark.parametrize("observer,message", [
+    ("{mode: attached}", "observer: mode attached needs the body to ride on (add body: NAME)"),
+    ("{mode: attached, body: rigg}", "observer.body: no body named 'rigg' (did you mean 'rig'?)"),
+    ("{mode: walk, body: rig}", "observer.body: body is for mode: attached"),
+])
+def test_attached_observer_errors(invoke, write_scene, observer, message):
+    scene = write_scene(f"vrsim: 1\nduration: 1\nobserver: {observer}\n"
+                        "bodies: [{name: rig, type: kinematic}]\n")
+    result = invoke("validate", scene)
+    assert result.exit_code == 2 and message in result.stderr, result.stderr

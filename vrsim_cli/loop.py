@@ -127,6 +127,8 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
 
     if render is not None:
         profile["render"] = 0.0
+    if model.observer is not None and model.observer.mode == "attached":
+        state = result.state = navigation.attach(model, state)  # on its body from t = 0
     frame_start = frame_end = state
     sample(state)
     draw(state)

@@ -200,7 +200,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         raise InputError(problems)
 
     gravity = data.get("gravity", list(DEFAULT_GRAVITY[:dim]))
-    observer = compile_observer(scene, gravity, problems)
+    observer = compile_observer(scene, gravity, problems, names)
     inputs = compile_input(scene, observer, problems)
     n_scene_bodies = len(data.get("bodies") or [])
     animation = compile_animation(scene, dim, pos0[:n_scene_bodies], quat0[:n_scene_bodies],

@@ -53,6 +53,7 @@ class ObserverModel:
     radius: float  # m, collision radius
     walls: str  # slide | stop (slide 5.4.2)
     fov_deg: float
+    body: int = -1  # attached: index of the body the observer rides on
 
 
 @dataclass(frozen=True)
@@ -78,7 +79,8 @@ def input_at(inputs: InputModel, frame: int, t: float):
     return _sample(inputs.times, inputs.values, at, inputs.linear)[0], None
 
 
-def compile_observer(scene: Scene, gravity, problems: list[Problem]) -> ObserverModel | None:
+def compile_observer(scene: Scene, gravity, problems: list[Problem],
+                     body_names=()) -> ObserverModel | None:
     spec = scene.data.get("observer")
     if spec is None:
         return None
@@ -111,6 +113,7 @@ def compile_observer(scene: Scene, gravity, problems: list[Problem]) -> Observer
         radius=float(spec.get("radius", DEFAULT_RADIUS)),
         walls=spec.get("walls", "slide"),
         fov_deg=float(spec.get("fov_deg", DEFAULT_FOV_DEG)),
+        body=list(body_names).index(spec["body"]) if "body" in spec else -1,
     )
 
 

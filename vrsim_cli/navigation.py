@@ -10,6 +10,8 @@ Slide 5.1, once per frame of length dt (the frame interval), velocity constant o
            view axes: the same rotations about the camera's own x and y axes;
            V_new = L - r d_hat_new with r = |V - L|, the current distance
   tracked: V and the orientation come from the head tracker.
+  attached: the observer rides on a body (a keyframed camera rig, a car), looking along
+           the body's local -z; exact at every sample, since it is read off the state.
 With scene geometry (static and kinematic bodies with analytic shapes), walking follows the
 terrain at eye_height, climbs steps up to step_height, falls under gravity where the ground
 drops by more than a step, and walls stop or slide the observer (X3D avatarSize semantics):
@@ -40,6 +42,8 @@ def step(model: Model, state: State, inputs: Inputs, dt: float) -> State:
     """Advance the observer by one frame of `dt` seconds. Pure: returns a new State."""
     ob = model.observer
     mode = ob.mode
+    if mode == "attached":
+        return attach(model, state)
     vel = None  # None: the frame's displacement over dt
     if mode == "tracked":
         pos, quat = inputs.pose[:3].copy(), inputs.pose[3:].copy()
@@ -249,9 +253,23 @@ def angular_velocity(q0, q1, dt: float) -> np.ndarray:
     return rel[1:] / s * angle / dt
 
 
+def attach(model: Model, state: State) -> State:
+    """The observer riding on its body: the body's pose and velocities, looking along the
+    body's local -z. A function of the current state, so exact at every sample."""
+    i = model.observer.body
+    quat = state.body_quat[i].copy()
+    length = float(np.linalg.norm(state.observer_dir))
+    return state.replace(observer_pos=state.body_pos[i].copy(),
+                         observer_dir=length * quat_rotate(quat, [0.0, 0.0, -1.0]),
+                         observer_quat=quat, observer_vel=state.body_vel[i].copy(),
+                         observer_angvel=state.body_angvel[i].copy(), observer_fall=0.0)
+
+
 def within_frame(model: Model, state: State, start: State, end: State, frac: float) -> State:
     """The observer at fraction `frac` of a frame: position moves linearly (the slide's
     velocity is constant over the frame) and the orientation turns at a constant rate."""
+    if model.observer.mode == "attached":
+        return attach(model, state)
     if frac >= 1.0:
         return state.replace(observer_pos=end.observer_pos, observer_dir=end.observer_dir,
                              observer_quat=end.observer_quat, observer_vel=end.observer_vel,

@@ -474,7 +474,7 @@ def _semantic_problems(scene: Scene) -> Iterator[Problem]:
         for key in _EMITTER_VECTORS:
             yield from vector(at + (key,))
         yield from nonzero(at + ("direction",), "an emitter's direction")
-    yield from _observer_problems(scene, dim)
+    yield from _observer_problems(scene, dim, names)
     # Keyframes, drives and parents (the scene graph): checks in animation_spec.
     for path, message, hint in body_issues(data.get("bodies") or [], dim):
         yield scene.problem(path, message, hint)
@@ -490,7 +490,7 @@ def _semantic_problems(scene: Scene) -> Iterator[Problem]:
 INPUT_SOURCES = ("mouse", "per_frame", "file", "tracker", "replay")
 
 
-def _observer_problems(scene: Scene, dim: int) -> Iterator[Problem]:
+def _observer_problems(scene: Scene, dim: int, names: dict) -> Iterator[Problem]:
     observer = scene.data.get("observer")
     inputs = scene.data.get("input") or {}
     sources = [k for k in INPUT_SOURCES if k in inputs]
@@ -521,6 +521,20 @@ def _observer_problems(scene: Scene, dim: int) -> Iterator[Problem]:
         yield scene.problem(("observer", "mode") if "mode" in observer else ("observer",),
                             f"input.tracker sets the pose directly, but the mode is '{mode}'",
                             "use mode: tracked")
+    if mode == "attached":
+        body = observer.get("body")
+        if body is None:
+            yield scene.problem(("observer",), "mode attached needs the body to ride on",
+                                "add body: NAME", at_key=True)
+        elif body not in names or names[body][0] != "bodies":
+            yield scene.problem(("observer", "body"), f"no body named '{body}'",
+                                did_you_mean(body, [n for n, p in names.items()
+                                                    if p[0] == "bodies"]))
+        if "input" in scene.data:
+            yield scene.problem(("input",), "an attached observer takes no sensor input",
+                                at_key=True)
+    elif "body" in observer:
+        yield scene.problem(("observer", "body"), "body is for mode: attached", at_key=True)
     if mode == "tracked" and not ({"tracker", "replay"} & set(inputs)):
         yield scene.problem(("observer", "mode"), "mode tracked needs input.tracker (or a "
                             "replayed tracker run in input.replay)")

@@ -60,6 +60,10 @@ def make_state(model: Model) -> State:
         ob = model.observer
         pos, direction = ob.position0.copy(), ob.direction0.copy()
         quat = look_rotation(direction, ob.up)
+        if ob.mode == "attached":  # the body's initial pose (world, or local to a parent
+            i = ob.body            # until the scene graph's first update, before any sample)
+            pos, quat = model.body_pos0[i].copy(), model.body_quat0[i].copy()
+            direction = np.linalg.norm(direction) * quat_rotate(quat, [0.0, 0.0, -1.0])
         pose = input_at(model.inputs, 0, 0.0)[1]
         if pose is not None:  # tracked: the first tracker pose
             pos, quat = pose[:3].copy(), pose[3:].copy()
