@@ -46,7 +46,7 @@ def test_keyframes_scenario_animates_colour_scale_and_attributes(tmp_path):
         assert lamp["attributes"] == {"intensity": float(evaluate(intensity, t)[0])}
     # /scene: every body once at the start, then only the lamp, each time it changed
     scene = topics["/scene"]
-    assert [e["id"] for e in scene[0][1]["entities"]] == ["camera_rig", "lamp", "ground"]
+    assert [e["id"] for e in scene[0][1]["entities"]] == ["camera_rig", "lamp", "ground", "observer"]
     later = [e for _, m in scene[1:] for e in m["entities"]]
     assert later and {e["id"] for e in later} == {"lamp"}
     t, entity = scene[-1][0] / 1e9, later[-1]
