@@ -325,6 +325,26 @@ def validate(scene_files, quiet):
     sys.exit(EXIT_INPUT if failed else 0)
 
 
+# ----------------------------------------------------------------------------- mass-properties
+
+
+@cli.command("mass-properties")
+@click.argument("scene_file", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+@_reports_errors
+def mass_properties(scene_file, as_json):
+    """Mass, centre of mass, inertia tensor, principal moments and axes of each body."""
+    from vrsim_cli.mass_properties import format_report, scene_report
+    from vrsim_cli.scene import load_scene
+
+    scene = load_scene(scene_file)
+    rows = scene_report(scene)
+    if as_json:
+        click.echo(json.dumps(rows, indent=2))
+    else:
+        click.echo(format_report(rows, int(scene.data.get("dimension", 3))))
+
+
 # ----------------------------------------------------------------------------- schema
 
 

@@ -1,0 +1,88 @@
+"""Rotation matrices for rigid-body integration, vectorised over a leading body axis.
+
+Layer 0, beside `spatial` (which holds quaternion helpers for scene input). Everything
+here takes and returns stacks: `R: (k, 3, 3)`, `w: (k, 3)`. Matrices are active rotations
+mapping body (model) coordinates to world coordinates: `p_world = S + R p0` (slide 5.3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def skew(w: np.ndarray) -> np.ndarray:
+    """(k, 3) -> (k, 3, 3) cross-product matrices `w*` with `w* b = w x b` (slide 5.3.2)."""
+    z = np.zeros(w.shape[:-1])
+    x, y, zz = w[..., 0], w[..., 1], w[..., 2]
+    return np.stack([np.stack([z, -zz, y], -1),
+                     np.stack([zz, z, -x], -1),
+                     np.stack([-y, x, z], -1)], -2)
+
+
+def orthonormalize(R: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) -> nearest rotation matrices (polar decomposition).
+
+    With the singular value decomposition `R = U S Vt`, the orthonormal polar factor
+    `U Vt` is the rotation closest to R in the Frobenius norm (Higham, *Functions of
+    Matrices*, thm 8.4), so the correction removes only the drift and no rotation
+    direction is preferred (unlike Gram-Schmidt, which keeps the first column exactly).
+    """
+    u, _, vt = np.linalg.svd(R)
+    return u @ vt
+
+
+def orthonormality_error(R: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) -> (k,) max |R^T R - E| over the entries."""
+    eye = np.eye(3)
+    return np.abs(np.swapaxes(R, -1, -2) @ R - eye).max(axis=(-2, -1))
+
+
+def axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
+    """(k,) angles in rad -> (k, 3, 3) rotations about coordinate axis 0, 1 or 2."""
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.zeros(angle.shape + (3, 3))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    out[..., axis, axis] = 1.0
+    out[..., i, i] = c
+    out[..., j, j] = c
+    out[..., i, j] = -s
+    out[..., j, i] = s
+    return out
+
+
+def exp_so3(w: np.ndarray) -> np.ndarray:
+    """(k, 3) rotation vectors (axis * angle, rad) -> (k, 3, 3) by Rodrigues' formula."""
+    theta = np.linalg.norm(w, axis=-1)
+    small = theta < 1e-8
+    safe = np.where(small, 1.0, theta)
+    # Taylor series below 1e-8 rad: sin t / t = 1 - t^2/6, (1 - cos t) / t^2 = 1/2 - t^2/24.
+    a = np.where(small, 1.0 - theta ** 2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta ** 2 / 24.0, (1.0 - np.cos(safe)) / safe ** 2)
+    K = skew(w)
+    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def quat_from_matrix(R: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) rotation matrices -> (k, 4) unit quaternions [w, x, y, z] with w >= 0.
+
+    Shepperd's method: the entries of R give every product 4 q_i q_j; divide the row of
+    the largest |q_i| (found from the diagonal) by 4 |q_i|, so the division is always by a
+    number >= 1 (no cancellation, no matter how the matrix is turned).
+    """
+    R = np.asarray(R, dtype=float)
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    a = R[..., 2, 1] - R[..., 1, 2]  # 4 w x
+    b = R[..., 0, 2] - R[..., 2, 0]  # 4 w y
+    c = R[..., 1, 0] - R[..., 0, 1]  # 4 w z
+    e = R[..., 0, 1] + R[..., 1, 0]  # 4 x y
+    f = R[..., 0, 2] + R[..., 2, 0]  # 4 x z
+    g = R[..., 1, 2] + R[..., 2, 1]  # 4 y z
+    d = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22,
+                  1 - m00 - m11 + m22], -1)  # 4 q_i^2
+    table = np.stack([d[..., 0], a, b, c, a, d[..., 1], e, f,
+                      b, e, d[..., 2], g, c, f, g, d[..., 3]], -1).reshape(R.shape[:-2] + (4, 4))
+    pick = np.argmax(d, axis=-1)[..., None, None]
+    row = np.take_along_axis(table, pick, axis=-2)[..., 0, :]
+    q = row / np.sqrt(np.take_along_axis(d, pick[..., 0], axis=-1))
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
