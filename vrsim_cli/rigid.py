@@ -39,7 +39,7 @@ from vrsim_cli.errors import SimulationError
 from vrsim_cli.model import Model
 from vrsim_cli.rigid_model import (RigidModel, angular_velocity, mechanical_energy,
                                    spring_ends)
-from vrsim_cli.rotation import exp_so3, orthonormalize, quat_from_matrix, skew
+from vrsim_cli.rotation import axis_rotation, exp_so3, orthonormalize, quat_from_matrix, skew
 from vrsim_cli.state import State
 
 # A conserving scene has blown up when its energy grew by more than this fraction of
@@ -142,9 +142,6 @@ def _finish_rotation(model: Model, R):
     return orthonormalize(R) if model.rigid.orthonormalize and len(R) else R
 
 
-_PLANE = ((1, 2), (2, 0), (0, 1))  # the plane a rotation about axis 0, 1, 2 turns
-
-
 def free_rotation(rigid: RigidModel, R, L, h: float, strang: bool):
     """R after time h of torque-free motion with constant world L, by splitting the kinetic
     energy sum_i Lb_i^2 / (2 I_i) (principal body frame) into its three terms: each term's
@@ -153,21 +150,15 @@ def free_rotation(rigid: RigidModel, R, L, h: float, strang: bool):
     with half steps outside) is order 2. Kinematic bodies turn exactly at their rate."""
     Q = rigid.rot_axes
     Rp = R @ Q  # principal frame -> world
-    Lb = (L[:, None, :] @ Rp)[:, 0, :]  # Rp^T L
-    moments = np.where(rigid.rot_kinematic[:, None], 1.0, rigid.rot_moments)
+    Lb = L[:, None, :] @ Rp  # (r, 1, 3): (Rp^T L)^T, a row per body
+    rates = np.where(rigid.rot_kinematic[:, None], 0.0, 1.0 / rigid.rot_moments)
     plan = [(0, 0.5 * h), (1, 0.5 * h), (2, h), (1, 0.5 * h), (0, 0.5 * h)] if strang \
         else [(0, h), (1, h), (2, h)]
     for axis, hh in plan:
-        # Rp <- Rp Rot_axis(theta), Lb <- Rot_axis(theta)^T Lb: only two columns change.
-        i, j = _PLANE[axis]
-        theta = hh * Lb[:, axis] / moments[:, axis]
-        c, s = np.cos(theta), np.sin(theta)
-        ci, cj = Rp[:, :, i].copy(), Rp[:, :, j]
-        Rp[:, :, i] = c[:, None] * ci + s[:, None] * cj
-        Rp[:, :, j] = c[:, None] * cj - s[:, None] * ci
-        li, lj = Lb[:, i].copy(), Lb[:, j]
-        Lb[:, i] = c * li + s * lj
-        Lb[:, j] = c * lj - s * li
+        # Rp <- Rp Rot_axis(theta), Lb <- Rot_axis(theta)^T Lb, theta = h Lb_axis / I_axis.
+        rot = axis_rotation(axis, (hh * rates[:, axis]) * Lb[:, 0, axis])
+        Rp = Rp @ rot
+        Lb = Lb @ rot
     R1 = Rp @ np.swapaxes(Q, -1, -2)
     if rigid.rot_kinematic.any():
         kin = rigid.rot_kinematic
@@ -201,8 +192,10 @@ def _verlet(model, t, dt, x, v, R, L, mask):
     L_half = L + (0.5 * dt) * M
     x1 = x + dt * v_half
     R1 = _finish_rotation(model, free_rotation(model.rigid, R, L_half, dt, strang=True))
-    # Time windows are read at the step's start t, so a windowed force acts on whole steps.
-    a1, M1 = forces(model, t, x1, v_half, R1, L_half, _omega(model, R1, L_half), mask)
+    # Time windows are read at the step's start t, so a windowed force acts on whole steps;
+    # forces that do not depend on the configuration need no second evaluation.
+    a1, M1 = (a, M) if model.rigid.static_forces else \
+        forces(model, t, x1, v_half, R1, L_half, _omega(model, R1, L_half), mask)
     return x1, v_half + (0.5 * dt) * a1, R1, L_half + (0.5 * dt) * M1
 
 
@@ -307,9 +300,9 @@ def energy(model: Model, state: State):
 
 
 def check(model: Model, state: State) -> None:
-    """Raise SimulationError naming the body when the rotation is not finite or, in a
-    scene that conserves energy (no driving forces; damping allowed), the energy grew past
-    the bound of ENERGY_GROWTH_LIMIT."""
+    """Raise SimulationError naming the body when the rotation is not finite (every step)
+    or, in a scene that conserves energy (no driving forces; damping allowed), the energy
+    grew past the bound of ENERGY_GROWTH_LIMIT (checked at every frame)."""
     rigid = model.rigid
     if rigid is None:
         return
@@ -320,7 +313,9 @@ def check(model: Model, state: State) -> None:
             raise SimulationError("orientation or angular momentum is not finite (NaN or "
                                   "Inf): the integration blew up; try a smaller dt or "
                                   "another integrator", body=body, t=state.t)
-    if not rigid.energy_guard:
+    # Energy grows over many steps, not in one: check it once per frame (and at the end).
+    if not rigid.energy_guard or (state.step % model.steps_per_frame
+                                  and state.step != model.n_steps):
         return
     per_body, kinetic, spring = energy(model, state)
     gain = per_body.sum() - rigid.energy0_body.sum()

@@ -20,6 +20,7 @@ from vrsim_cli.rigid_checks import rotates
 from vrsim_cli.spatial import quat_to_matrix
 
 ADAPTIVE = ("dopri5",)
+BODY_KINEMATIC = 1  # model.BODY_KINEMATIC (model imports this module)
 DEFAULT_TOLERANCE = 1e-6
 
 
@@ -76,6 +77,7 @@ class RigidModel:
     tolerance: float  # dopri5: error tolerance per step
     energy_guard: bool  # the scene conserves energy (up to damping): guard against growth
     mass_properties: tuple  # (n_body,) MassProperties | None, for reports
+    static_forces: bool = False  # forces and torques depend on time only (not on x, v, R, L)
     energy0_body: np.ndarray | None = None  # (n_body,) J at t = 0 (energy_guard only)
     energy0_scale: float = 0.0  # J: kinetic + |spring| energy at t = 0 (energy_guard only)
 
@@ -203,7 +205,9 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
         sk.append(float(spring["stiffness"]))
         sc.append(float(spring.get("damping", 0.0)))
         srest.append(float(spring.get("rest_length", np.linalg.norm(world_b - world_a))))
-    kinematic_spring = any(b >= 0 and kinds[b] != 0 for b in sb)
+    kinematic_spring = any(b >= 0 and kinds[b] == BODY_KINEMATIC for b in sb)
+    static_forces = not (sa or any(force_has_point) or any(force_in_body)
+                         or any(torque_in_body) or lin_damp.any() or ang_damp.any())
     guard = not (data.get("emitters") or force_point or torque_body or kinematic_spring)
     n_force, n_torque, n_spring = len(force_point), len(torque_body), len(sa)
     rigid = RigidModel(
@@ -238,6 +242,7 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
         tolerance=float(data.get("tolerance", DEFAULT_TOLERANCE)),
         energy_guard=guard,
         mass_properties=tuple(props_all),
+        static_forces=static_forces,
     )
     if not guard or problems:
         return rigid
@@ -291,7 +296,8 @@ def mechanical_energy(rigid: RigidModel, mass: np.ndarray, gravity: np.ndarray,
                       x: np.ndarray, v: np.ndarray, R: np.ndarray, L: np.ndarray):
     """(per-body energy (n,) J, total kinetic J, total spring J). Kinetic energy
     m|v|^2/2 + L.omega/2, gravity -m g.x, a spring's k (l - l0)^2/2 split between its two
-    bodies (all to the body at a world anchor). Kinematic and static bodies count 0."""
+    bodies (all to the dynamic one when the other end is an anchor or a static or
+    kinematic body). Kinematic and static bodies count 0."""
     dyn = np.isfinite(mass)
     m = np.where(dyn, mass, 0.0)
     kinetic = 0.5 * m * (v * v).sum(1)
@@ -306,8 +312,8 @@ def mechanical_energy(rigid: RigidModel, mass: np.ndarray, gravity: np.ndarray,
         stretch = np.linalg.norm(pb - pa, axis=1) - rigid.spring_rest
         spe = 0.5 * rigid.spring_k * stretch ** 2
         b = rigid.spring_b
-        share = np.where(b < 0, 1.0, 0.5)
-        np.add.at(per_body, rigid.spring_a, share * spe)
-        np.add.at(per_body, b[b >= 0], 0.5 * spe[b >= 0])
+        shared = (b >= 0) & dyn[np.where(b >= 0, b, 0)]  # both ends can move
+        np.add.at(per_body, rigid.spring_a, np.where(shared, 0.5, 1.0) * spe)
+        np.add.at(per_body, b[shared], 0.5 * spe[shared])
         spring_total = float(spe.sum())
     return per_body, float(kinetic.sum()), spring_total
