@@ -50,15 +50,17 @@ ENERGY_GROWTH_LIMIT = 0.5
 GRAVITY_SCALE_M = 1.0
 
 
-def forces(model: Model, t: float, x, v, R, L, w, mask):
+def forces(model: Model, t: float, x, v, R, L, mask, w=None):
     """Accelerations (n, 3) m/s^2 of all bodies and torques (r, 3) N m of the rotating ones.
 
     t: s, selects the time-windowed forces and torques active now. x, v: (n, 3);
-    R: (r, 3, 3); L, w: (r, 3) world angular momentum and velocity; mask: (n, 1) 1.0 for
-    bodies moved by forces.
+    R: (r, 3, 3); L, w: (r, 3) world angular momentum and velocity (w is computed here
+    when None and springs need it); mask: (n, 1) 1.0 for bodies moved by forces.
     """
     rigid: RigidModel = model.rigid
     n, r = model.n_body, rigid.n_rot
+    if rigid.static_forces and not (len(model.force_body) or len(rigid.torque_body)):
+        return mask * model.gravity, np.zeros((r, 3))  # gravity only
     F = np.zeros((n, 3))
     M = np.zeros((r, 3))
     if len(model.force_body):
@@ -89,6 +91,7 @@ def forces(model: Model, t: float, x, v, R, L, w, mask):
             tau = np.where(in_body[:, None], np.einsum("kij,kj->ki", R[slot], tau), tau)
             np.add.at(M, slot, tau)
     if len(rigid.spring_a):
+        w = _omega(model, R, L) if w is None else w
         _spring_forces(model, rigid, x, v, R, w, F, M)
     mass = model.body_mass
     if rigid.body_lin_damping.any():
@@ -171,14 +174,13 @@ def free_rotation(rigid: RigidModel, R, L, h: float, strang: bool):
 
 def _euler(model, t, dt, x, v, R, L, mask):
     w = _omega(model, R, L)
-    a, M = forces(model, t, x, v, R, L, w, mask)
+    a, M = forces(model, t, x, v, R, L, mask, w)
     R1 = R + dt * (skew(w) @ R)  # slide step 2 with the old omega
     return x + dt * v, v + dt * a, _finish_rotation(model, R1), L + dt * M
 
 
 def _symplectic_euler(model, t, dt, x, v, R, L, mask):
-    w = _omega(model, R, L)
-    a, M = forces(model, t, x, v, R, L, w, mask)
+    a, M = forces(model, t, x, v, R, L, mask)
     v1 = v + dt * a
     L1 = L + dt * M
     R1 = free_rotation(model.rigid, R, L1, dt, strang=False)
@@ -186,8 +188,7 @@ def _symplectic_euler(model, t, dt, x, v, R, L, mask):
 
 
 def _verlet(model, t, dt, x, v, R, L, mask):
-    w = _omega(model, R, L)
-    a, M = forces(model, t, x, v, R, L, w, mask)
+    a, M = forces(model, t, x, v, R, L, mask)
     v_half = v + (0.5 * dt) * a
     L_half = L + (0.5 * dt) * M
     x1 = x + dt * v_half
@@ -195,14 +196,14 @@ def _verlet(model, t, dt, x, v, R, L, mask):
     # Time windows are read at the step's start t, so a windowed force acts on whole steps;
     # forces that do not depend on the configuration need no second evaluation.
     a1, M1 = (a, M) if model.rigid.static_forces else \
-        forces(model, t, x1, v_half, R1, L_half, _omega(model, R1, L_half), mask)
+        forces(model, t, x1, v_half, R1, L_half, mask)
     return x1, v_half + (0.5 * dt) * a1, R1, L_half + (0.5 * dt) * M1
 
 
 def _derivative(model, mask):
     def f(t, x, v, R, L):
         w = _omega(model, R, L)
-        a, M = forces(model, t, x, v, R, L, w, mask)
+        a, M = forces(model, t, x, v, R, L, mask, w)
         return v, a, skew(w) @ R, M
     return f
 
