@@ -150,22 +150,23 @@ def test_dzhanibekov_flips_and_final_orientation(dzhanibekov_reference, integrat
 
 def test_slide_euler_gains_energy_and_loses_the_flips(dzhanibekov_reference):
     # The slide's explicit step rotates about the old omega: the energy grows every step
-    # (relative growth ~ dt^2 |omega|^2), 42 % over 20 s at dt = 1 ms, enough to leave the
-    # separatrix: the box tumbles instead of flipping every 4.16 s. It still runs: the
-    # growth stays below the blow-up bound (energy tripled).
-    model, s0, s1, rec = simulate(free_box_scene("euler", 0.001, 20.0))
+    # (relative growth ~ dt^2 |omega|^2 per step, so ~ dt t |omega|^2 in all: measured
+    # 22 % over 8 s at dt = 2 ms), enough to leave the separatrix: the box tumbles
+    # (9 sign changes of omega_y) instead of flipping every 4.16 s (2 in 8 s). It still
+    # runs: the growth stays below the blow-up bound (energy tripled).
+    model, s0, s1, rec = simulate(free_box_scene("euler", 0.002, 8.0))
     e0, e1 = rigid.energy(model, s0)[1], rigid.energy(model, s1)[1]
-    assert 0.3 < (e1 - e0) / e0 < 0.6
+    assert 0.1 < (e1 - e0) / e0 < 0.4
     flips = crossings(rec.t, np.array(rec.w_body)[:, 1])
-    assert len(flips) > 2 * len(crossings(dzhanibekov_reference[0],
-                                          dzhanibekov_reference[1][:, 1]))
+    t_ref, w_ref = dzhanibekov_reference[:2]
+    assert len(flips) > 2 * len(crossings(t_ref[t_ref <= 8.0], w_ref[t_ref <= 8.0, 1]))
 
 
 def test_symplectic_euler_keeps_energy_bounded():
     # First order, symplectic: the energy error oscillates with amplitude O(dt |omega|)
     # (= 1e-2 at dt = 2 ms; measured peaks ~1e-3, at the flips) and does not drift: the
     # second half of the run is no worse than the first.
-    model, s0, s1, rec = simulate(free_box_scene("symplectic-euler", 0.002, 20.0))
+    model, s0, s1, rec = simulate(free_box_scene("symplectic-euler", 0.002, 10.0))
     L = s0.rot_angmom[0]
     energies = np.array([0.5 * ((R.T @ L) ** 2 / MOMENTS).sum() for R in rec.R])
     error = np.abs(energies / energies[0] - 1)

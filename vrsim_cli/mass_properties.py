@@ -168,7 +168,8 @@ def mesh_properties(path: str, scale: float, mass: float | None, density: float 
         import trimesh  # optional and heavy: only a mesh body with mass properties needs it
     except ImportError:  # pragma: no cover - trimesh is a dependency; a broken install
         raise MassPropertyError(("shape", "file"), "trimesh is needed for the mass "
-                                "properties of a mesh", "pip install trimesh") from None
+                                "properties of a mesh", "pip install 'vrsim-cli[mesh]'") \
+            from None
     try:
         mesh = trimesh.load(path, force="mesh")
     except Exception as exc:  # trimesh raises many types for unreadable files
