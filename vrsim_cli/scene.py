@@ -363,6 +363,9 @@ def _explain(scene: Scene, err) -> Iterator[Problem]:
     elif kind == "pattern":
         yield scene.problem(path, f"{_show(value)} is not a valid name",
                             err.schema.get("description"))
+    elif kind == "oneOf":  # alternatives (a number or a vector, a list or a generator)
+        yield scene.problem(path, f"{_show(value)} is none of the forms allowed here",
+                            err.schema.get("description"))
     elif kind in ("minLength", "maxLength"):
         yield scene.problem(path, "must not be empty" if kind == "minLength"
                             else f"is longer than {expected} characters")
