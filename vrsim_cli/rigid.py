@@ -53,7 +53,9 @@ GRAVITY_SCALE_M = 1.0
 def forces(model: Model, t: float, x, v, R, L, mask, w=None):
     """Accelerations (n, 3) m/s^2 of all bodies and torques (r, 3) N m of the rotating ones.
 
-    t: s, selects the time-windowed forces and torques active now. x, v: (n, 3);
+    t: s, the start of the step: selects the time-windowed forces and torques, which are
+    sampled once per step for every integrator (a window acts on the steps whose start
+    lies in it; for dopri5, on the grid intervals). x, v: (n, 3);
     R: (r, 3, 3); L, w: (r, 3) world angular momentum and velocity (w is computed here
     when None and springs need it); mask: (n, 1) 1.0 for bodies moved by forces.
     """
@@ -193,23 +195,26 @@ def _verlet(model, t, dt, x, v, R, L, mask):
     L_half = L + (0.5 * dt) * M
     x1 = x + dt * v_half
     R1 = _finish_rotation(model, free_rotation(model.rigid, R, L_half, dt, strang=True))
-    # Time windows are read at the step's start t, so a windowed force acts on whole steps;
-    # forces that do not depend on the configuration need no second evaluation.
+    # Time windows are sampled at the step's start t, so a windowed force acts on whole
+    # steps; forces that do not depend on the configuration need no second evaluation.
     a1, M1 = (a, M) if model.rigid.static_forces else \
         forces(model, t, x1, v_half, R1, L_half, mask)
     return x1, v_half + (0.5 * dt) * a1, R1, L_half + (0.5 * dt) * M1
 
 
-def _derivative(model, mask):
-    def f(t, x, v, R, L):
+def _derivative(model, mask, t_step: float):
+    """(S, v, R, L)' at a stage. Time windows are sampled once per step, at its start
+    t_step (as for point masses, `dynamics.active_forces`): within a step the system is
+    autonomous, so the stage time is not needed."""
+    def f(_t, x, v, R, L):
         w = _omega(model, R, L)
-        a, M = forces(model, t, x, v, R, L, mask, w)
+        a, M = forces(model, t_step, x, v, R, L, mask, w)
         return v, a, skew(w) @ R, M
     return f
 
 
 def _rk4(model, t, dt, x, v, R, L, mask):
-    f = _derivative(model, mask)
+    f = _derivative(model, mask, t)
     h = 0.5 * dt
     k1 = f(t, x, v, R, L)
     k2 = f(t + h, *(y + h * k for y, k in zip((x, v, R, L), k1)))
@@ -229,7 +234,7 @@ def _dopri5(model: Model, state: State, mask):
     new (x, v, R, L) and the step proposed for the next interval."""
     n, r = model.n_body, model.rigid.n_rot
     cuts = np.cumsum([0, 3 * n, 3 * n, 9 * r, 3 * r])
-    f = _derivative(model, mask)
+    f = _derivative(model, mask, state.t)
 
     def unpack(y):
         return (y[cuts[0]:cuts[1]].reshape(n, 3), y[cuts[1]:cuts[2]].reshape(n, 3),
