@@ -69,12 +69,11 @@ def forces(model: Model, t: float, x, v, R, L, mask, w=None):
         active = (model.force_start <= t) & (t < model.force_end)
         if active.any():
             body = model.force_body[active]
-            f = model.force_vec[active]
+            f = rigid.force_vec[active]
             slot = rigid.rot_slot[body]
             turning = slot >= 0
-            in_body = rigid.force_in_body[active] & turning
+            in_body = rigid.force_in_body[active]
             if in_body.any():  # body-frame forces turn with the body
-                f = f.copy()
                 f[in_body] = np.einsum("kij,kj->ki", R[slot[in_body]], f[in_body])
             np.add.at(F, body, f)
             at = rigid.force_has_point[active] & turning

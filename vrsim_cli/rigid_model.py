@@ -38,6 +38,9 @@ class RigidModel:
     rot_matrix0: (r, 3, 3) R at t = 0; rot_angmom0: (r, 3) kg m^2/s world L at t = 0;
     rot_angvel0: (r, 3) rad/s world omega at t = 0
     body_lin_damping, body_ang_damping: (n_body,) 1/s
+    force_vec: (n_force, 3) N: world vectors, except body-frame forces on rotating bodies
+        (force_in_body), which are in model coordinates; a body-frame force on a body that
+        does not rotate is turned by its fixed orientation here, once
     force_point: (n_force, 3) m; force_has_point, force_in_body: (n_force,) bool
     torque_body: (k,) int64; torque_vec: (k, 3) N m; torque_start, torque_end: (k,) s;
         torque_in_body: (k,) bool
@@ -58,6 +61,7 @@ class RigidModel:
     rot_angvel0: np.ndarray
     body_lin_damping: np.ndarray
     body_ang_damping: np.ndarray
+    force_vec: np.ndarray
     force_point: np.ndarray
     force_has_point: np.ndarray
     force_in_body: np.ndarray
@@ -128,11 +132,13 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
     rot_index, rot_kin, inertia, angvel0 = [], [], [], []
     lin_damp = np.zeros(n_body)
     ang_damp = np.zeros(n_body)
-    force_point, force_has_point, force_in_body = [], [], []
+    force_vec, force_point, force_has_point, force_in_body = [], [], [], []
     torque_body, torque_vec, torque_start, torque_end, torque_in_body = [], [], [], [], []
     for i, body in enumerate(bodies):
         at = ("bodies", i)
         kind = body.get("type", "dynamic")
+        if mesh_paths[i] is None and (body.get("shape") or {}).get("type") == "mesh":
+            continue  # the missing file is already reported
         if kind == "dynamic" and rotates(body):
             try:
                 props = body_mass_properties(body, dim, mesh_paths[i])
@@ -157,10 +163,16 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
         damping = body.get("damping") or {}
         lin_damp[i] = float(damping.get("linear", 0.0))
         ang_damp[i] = float(damping.get("angular", 0.0))
+        turning = bool(rot_index) and rot_index[-1] == i
         for force in body.get("forces") or []:
+            vec = np.array(_vec3(force["force"], dim))
+            in_body = force.get("frame", "world") == "body"
+            if in_body and not turning:  # a fixed orientation: turn the force once, here
+                vec = quat_to_matrix(np.asarray(quat0[i], dtype=float)) @ vec
+            force_vec.append(vec)
             force_point.append(_vec3(force.get("point", [0.0] * dim), dim))
             force_has_point.append("point" in force)
-            force_in_body.append(force.get("frame", "world") == "body")
+            force_in_body.append(in_body and turning)
         for torque in body.get("torques") or []:
             torque_body.append(i)
             torque_vec.append(_about_z(torque["torque"], dim))
@@ -223,6 +235,7 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
         rot_angvel0=_frozen(w0),
         body_lin_damping=_frozen(lin_damp),
         body_ang_damping=_frozen(ang_damp),
+        force_vec=_frozen(np.reshape(force_vec, (n_force, 3))),
         force_point=_frozen(np.reshape(force_point, (n_force, 3))),
         force_has_point=_frozen(force_has_point, bool),
         force_in_body=_frozen(force_in_body, bool),
