@@ -259,3 +259,10 @@ def test_cli_bad_body_exits_2(invoke, write_scene):
     result = invoke("mass-properties", write_scene(
         "vrsim: 1\nduration: 1\nbodies: [{name: b, mass: 1, inertia: [1, 1, 3]}]\n"))
     assert result.exit_code == 2 and "triangle inequality" in result.stderr
+
+
+def test_kinematic_spin_and_a_drive_do_not_mix():
+    with pytest.raises(InputError) as info:
+        parse_scene("vrsim: 1\nduration: 1\nbodies: [{name: car, type: kinematic, "
+                    "angular_velocity: [0, 1, 0], drive: {speed: 1}}]\n", "F")
+    assert any("orientation comes from its drive" in line for line in info.value.lines())

@@ -91,6 +91,12 @@ def _body_problems(scene, at: tuple, body: dict, dim: int) -> Iterator:
         elif kind == "dynamic" and not spins:
             yield scene.problem(at + ("angular_velocity",), "a point mass cannot spin",
                                 ROTATING_HINT, at_key=True)
+        elif kind == "kinematic":
+            driven = [key for key in ("keyframes", "drive", "parent") if key in body]
+            if driven:
+                yield scene.problem(at + ("angular_velocity",), f"this body's orientation "
+                                    f"comes from its {driven[0]}", "give the rotation there, "
+                                    "not as angular_velocity", at_key=True)
     for j, force in enumerate(body.get("forces") or []):
         if "point" in force:
             yield from _length(scene, at + ("forces", j, "point"), dim)
