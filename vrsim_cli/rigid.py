@@ -151,7 +151,7 @@ def free_rotation(rigid: RigidModel, R, L, h: float, strang: bool):
     energy sum_i Lb_i^2 / (2 I_i) (principal body frame) into its three terms: each term's
     flow is an exact rotation of the body about principal axis i by h Lb_i / I_i
     (Lb_i is constant under it). Lie-Trotter (1, 2, 3) is order 1; Strang (1, 2, 3, 2, 1
-    with half steps outside) is order 2. Kinematic bodies turn exactly at their rate."""
+    with half steps outside) is order 2. (Kinematic bodies are turned exactly by `step`.)"""
     Q = rigid.rot_axes
     Rp = R @ Q  # principal frame -> world
     Lb = L[:, None, :] @ Rp  # (r, 1, 3): (Rp^T L)^T, a row per body
@@ -163,11 +163,7 @@ def free_rotation(rigid: RigidModel, R, L, h: float, strang: bool):
         rot = axis_rotation(axis, (hh * rates[:, axis]) * Lb[:, 0, axis])
         Rp = Rp @ rot
         Lb = Lb @ rot
-    R1 = Rp @ np.swapaxes(Q, -1, -2)
-    if rigid.rot_kinematic.any():
-        kin = rigid.rot_kinematic
-        R1[kin] = exp_so3(h * rigid.rot_angvel0[kin]) @ R[kin]
-    return R1
+    return Rp @ np.swapaxes(Q, -1, -2)
 
 
 # ----------------------------------------------------------------------------- steppers
@@ -283,6 +279,10 @@ def step(model: Model, state: State, mask: np.ndarray) -> State:
         x, v, R, L = STEPPERS[model.integrator](model, state.t, model.dt, state.body_pos,
                                                 state.body_vel, state.rot_matrix,
                                                 state.rot_angmom, mask)
+    kin = rigid.rot_kinematic
+    if kin.any():  # kinematic bodies turn exactly at their rate, whatever the integrator
+        R = R.copy()
+        R[kin] = exp_so3(model.dt * rigid.rot_angvel0[kin]) @ state.rot_matrix[kin]
     n = state.step + 1
     quat, angvel = state.body_quat, state.body_angvel
     if rigid.n_rot:
