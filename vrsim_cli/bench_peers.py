@@ -90,3 +90,38 @@ def pybullet_projectile(dts, repeats):
     finally:
         pybullet.disconnect(client)
     return points
+
+
+def mujoco_dzhanibekov(dts, repeats):
+    """The free box in MuJoCo: a box geom (half-sizes) of the same mass on a free joint, no
+    gravity, no contacts; the free joint's angular velocity is in the body frame, which is
+    the world frame at t = 0."""
+    import mujoco
+
+    from vrsim_cli.bench import DZHANIBEKOV, Point, best_time, dzhanibekov_truth, rotation_error
+    from vrsim_cli.spatial import quat_to_matrix
+
+    d = DZHANIBEKOV
+    truth = dzhanibekov_truth()
+    half = " ".join(repr(0.5 * s) for s in d["size"])
+    points = []
+    for integrator in MUJOCO_INTEGRATORS:
+        for dt in (dt for dt in dts if dt >= d["min_dt"]):
+            xml = f"""<mujoco><option timestep="{dt!r}" integrator="{integrator}"
+                gravity="0 0 0"/><worldbody><body><freejoint/>
+                <geom type="box" size="{half}" mass="{d['mass']!r}" contype="0"
+                conaffinity="0"/></body></worldbody></mujoco>"""
+            model = mujoco.MjModel.from_xml_string(xml)
+            data = mujoco.MjData(model)
+            steps = round(d["duration"] / dt)
+
+            def go():
+                mujoco.mj_resetData(model, data)
+                data.qvel[3:] = d["omega0"]
+                mujoco.mj_step(model, data, nstep=steps)
+                return data.qpos[3:7].copy()
+
+            wall, quat = best_time(go, repeats)
+            error = rotation_error(quat_to_matrix(quat), truth)
+            points.append(Point("dzhanibekov", "mujoco", integrator, dt, wall, error, steps))
+    return points
