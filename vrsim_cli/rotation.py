@@ -84,31 +84,31 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
     """(k, 3, 3) rotation matrices -> (k, 4) unit quaternions [w, x, y, z] with w >= 0.
 
     Shepperd's method: the entries of R give every product 4 q_i q_j; divide the row of
-    the largest |q_i| (found from the diagonal) by 4 |q_i|, so the division is always by a
-    number >= 1 (no cancellation, no matter how the matrix is turned).
+    the largest |q_i| (found from the diagonal) by 4 |q_i| >= 1, so there is no
+    cancellation however the matrix is turned. Rows with trace > -1/2 (w^2 > 1/8, most
+    of them) take the w row directly, the others pick their pivot.
     """
-    R = np.asarray(R, dtype=float)
-    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    R = np.asarray(R, dtype=float).reshape(-1, 3, 3)
+    m00, m11, m22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
+    a = R[:, 2, 1] - R[:, 1, 2]  # 4 w x
+    b = R[:, 0, 2] - R[:, 2, 0]  # 4 w y
+    c = R[:, 1, 0] - R[:, 0, 1]  # 4 w z
     trace = m00 + m11 + m22
-    if R.ndim == 3 and (trace > 0.5).all():
-        # Fast path, the common case: w^2 = (1 + trace)/4 > 3/8, so w is the safe pivot.
-        four_w = 2.0 * np.sqrt(1.0 + trace)
-        q = np.stack([0.25 * four_w, R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0],
-                      R[:, 1, 0] - R[:, 0, 1]], -1)
-        q[:, 1:] /= four_w[:, None]
-        return q / np.linalg.norm(q, axis=-1, keepdims=True)
-    a = R[..., 2, 1] - R[..., 1, 2]  # 4 w x
-    b = R[..., 0, 2] - R[..., 2, 0]  # 4 w y
-    c = R[..., 1, 0] - R[..., 0, 1]  # 4 w z
-    e = R[..., 0, 1] + R[..., 1, 0]  # 4 x y
-    f = R[..., 0, 2] + R[..., 2, 0]  # 4 x z
-    g = R[..., 1, 2] + R[..., 2, 1]  # 4 y z
-    d = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22,
-                  1 - m00 - m11 + m22], -1)  # 4 q_i^2
-    table = np.stack([d[..., 0], a, b, c, a, d[..., 1], e, f,
-                      b, e, d[..., 2], g, c, f, g, d[..., 3]], -1).reshape(R.shape[:-2] + (4, 4))
-    pick = np.argmax(d, axis=-1)[..., None, None]
-    row = np.take_along_axis(table, pick, axis=-2)[..., 0, :]
-    q = row / np.sqrt(np.take_along_axis(d, pick[..., 0], axis=-1))
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
+    four_w = 2.0 * np.sqrt(np.maximum(1.0 + trace, 0.5))
+    q = np.stack([0.25 * four_w, a / four_w, b / four_w, c / four_w], -1)
+    hard = trace <= -0.5
+    if hard.any():
+        h = np.nonzero(hard)[0]
+        e = R[h, 0, 1] + R[h, 1, 0]  # 4 x y
+        f = R[h, 0, 2] + R[h, 2, 0]  # 4 x z
+        g = R[h, 1, 2] + R[h, 2, 1]  # 4 y z
+        d = np.stack([1 + m00[h] - m11[h] - m22[h], 1 - m00[h] + m11[h] - m22[h],
+                      1 - m00[h] - m11[h] + m22[h]], -1)  # 4 x^2, 4 y^2, 4 z^2
+        table = np.stack([np.stack([a[h], d[:, 0], e, f], -1),
+                          np.stack([b[h], e, d[:, 1], g], -1),
+                          np.stack([c[h], f, g, d[:, 2]], -1)], 1)  # (k, pivot, 4)
+        pick = np.argmax(d, axis=-1)
+        rows = np.arange(len(h))
+        q[h] = table[rows, pick] / np.sqrt(d[rows, pick])[:, None]
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[:, :1] < 0, -q, q)
