@@ -39,7 +39,8 @@ from vrsim_cli.errors import SimulationError
 from vrsim_cli.model import Model
 from vrsim_cli.rigid_model import (RigidModel, angular_velocity, mechanical_energy,
                                    spring_ends)
-from vrsim_cli.rotation import axis_rotation, exp_so3, orthonormalize, quat_from_matrix, skew
+from vrsim_cli.rotation import (axis_rotation, cross, exp_so3, orthonormalize,
+                                quat_from_matrix, skew)
 from vrsim_cli.state import State
 
 # A conserving scene has blown up when its energy grew by more than this fraction of
@@ -82,7 +83,7 @@ def forces(model: Model, t: float, x, v, R, L, mask, w=None):
                 arm = np.where(in_body[at, None],
                                np.einsum("kij,kj->ki", R[slot[at]], point),
                                point - x[body[at]])
-                np.add.at(M, slot[at], np.cross(arm, f[at]))
+                np.add.at(M, slot[at], cross(arm, f[at]))
     if len(rigid.torque_body):
         active = (rigid.torque_start <= t) & (t < rigid.torque_end)
         if active.any():
@@ -117,7 +118,7 @@ def _spring_forces(model, rigid, x, v, R, w, F, M) -> None:
         vel = v[body].copy()
         slot = rigid.rot_slot[body]
         turning = slot >= 0
-        vel[turning] += np.cross(w[slot[turning]], arm[turning])
+        vel[turning] += cross(w[slot[turning]], arm[turning])
         return vel
 
     va = point_velocity(a, arm_a)
@@ -134,7 +135,7 @@ def _spring_forces(model, rigid, x, v, R, w, F, M) -> None:
                                   (bb, arm_b, -1.0, ~anchored)):
         slot = rigid.rot_slot[body]
         turning = (slot >= 0) & keep
-        np.add.at(M, slot[turning], sign * np.cross(arm[turning], f[turning]))
+        np.add.at(M, slot[turning], sign * cross(arm[turning], f[turning]))
 
 
 def _omega(model: Model, R, L):
