@@ -570,3 +570,10 @@ bodies:
 """)
     assert s1.body_vel[0] == pytest.approx([0, 2, 0], abs=1e-12)
     assert s1.body_pos[0] == pytest.approx([0, 1, 0], abs=1e-12)
+
+
+def test_tolerance_without_an_adaptive_integrator_is_noted(invoke, write_scene):
+    result = invoke("run", write_scene("vrsim: 1\nduration: 0.1\nintegrator: rk4\n"
+                                       "tolerance: 1.0e-8\nbodies: [{name: a, mass: 1}]\n"))
+    assert result.exit_code == 0
+    assert "tolerance has no effect with integrator rk4" in result.stderr

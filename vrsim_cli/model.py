@@ -23,7 +23,7 @@ from vrsim_cli.errors import InputError, Problem
 from vrsim_cli.geometry import ANALYTIC
 from vrsim_cli.model_observer import InputModel, ObserverModel, compile_input, compile_observer
 from vrsim_cli.frames_spec import FramesSpec, compile_frames
-from vrsim_cli.rigid_model import ADAPTIVE, RigidModel, compile_rigid
+from vrsim_cli.rigid_model import ADAPTIVE, RigidModel, compile_rigid, rigid_notes
 from vrsim_cli.scene import Scene
 from vrsim_cli.spatial import (IDENTITY_QUAT, quat_from_axis_angle, quat_from_euler_deg,
                                quat_normalize, quat_rotating, unit)
@@ -261,7 +261,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         body_index={name: i for i, name in enumerate(names)},
         observer=observer,
         inputs=inputs,
-        notes=_notes(data),
+        notes=_notes(data) + rigid_notes(data),
         # Static and kinematic bodies with analytic shapes (meshes join with collision).
         observer_obstacles=tuple(i for i, (kind, shape) in enumerate(zip(kinds, shapes))
                                  if kind != BODY_DYNAMIC and shape is not None

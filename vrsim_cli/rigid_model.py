@@ -106,6 +106,15 @@ def _about_z(value, dim: int) -> list[float]:
     return [0.0, 0.0, float(value)] if dim == 2 else [float(v) for v in value]
 
 
+def rigid_notes(data: dict) -> tuple:
+    """Valid keys that have no effect in this scene, said out loud."""
+    if "tolerance" in data and data.get("integrator") not in ADAPTIVE:
+        return (f"tolerance has no effect with integrator "
+                f"{data.get('integrator', 'symplectic-euler')}: it is for dopri5, which "
+                f"chooses its own steps",)
+    return ()
+
+
 def needs_rigid(data: dict) -> bool:
     """Does the scene use anything beyond point masses under forces at the centre of mass?"""
     if data.get("integrator") in ADAPTIVE or data.get("springs"):
