@@ -577,3 +577,13 @@ def test_tolerance_without_an_adaptive_integrator_is_noted(invoke, write_scene):
                                        "tolerance: 1.0e-8\nbodies: [{name: a, mass: 1}]\n"))
     assert result.exit_code == 0
     assert "tolerance has no effect with integrator rk4" in result.stderr
+
+
+def test_cli_runs_dopri5_with_a_tolerance(invoke, write_scene, tmp_path):
+    # --integrator dopri5 without dt: the grid is the frame (1/50 s); --tolerance applies.
+    out = tmp_path / "spin.csv"
+    scene = write_scene(free_box_scene("rk4", 0.01, 1.0, 50).replace("dt: 0.01\n", ""))
+    result = invoke("run", scene, "--integrator", "dopri5", "--tolerance", "1e-9", "-o", out)
+    assert result.exit_code == 0, result.output
+    assert "in 50 steps of 0.02 s" in result.stdout
+    assert len(read_trajectory(out).times) == 51
