@@ -587,3 +587,27 @@ def test_cli_runs_dopri5_with_a_tolerance(invoke, write_scene, tmp_path):
     assert result.exit_code == 0, result.output
     assert "in 50 steps of 0.02 s" in result.stdout
     assert len(read_trajectory(out).times) == 51
+
+
+def test_spring_from_an_offset_point_of_a_turned_static_body():
+    # The point (1, 0, 0) of a static body at (0, 2, 0) turned 90 degrees about z is the
+    # world point (0, 3, 0). A critically damped bob (c = 2 sqrt(k m)) without gravity
+    # starts at rest at (1, 0, 0) and settles on the line to that point, at the rest length
+    # 0.5 m from it; the deviation decays as (1 + w t) e^(-w t), w = 10 rad/s: ~1e-11 m
+    # after 3 s (RK4 keeps the equilibrium as a fixed point): tolerance 1e-10 m.
+    _, _, s1, _ = simulate("""
+vrsim: 1
+duration: 3
+frame_rate: 50
+dt: 0.005
+gravity: [0, 0, 0]
+integrator: rk4
+bodies:
+  - {name: ceiling, type: static, position: [0, 2, 0], euler_deg: [0, 0, 90]}
+  - {name: bob, mass: 0.5, position: [1, 0, 0]}
+springs: [{body: bob, to: ceiling, to_point: [1, 0, 0], stiffness: 50, damping: 10,
+           rest_length: 0.5}]
+""")
+    anchor = np.array([0.0, 3.0, 0.0])
+    direction = np.array([1.0, -3.0, 0.0]) / math.sqrt(10.0)
+    assert s1.body_pos[1] == pytest.approx(anchor + 0.5 * direction, abs=1e-10)

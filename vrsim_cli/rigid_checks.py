@@ -133,9 +133,16 @@ def _spring_problems(scene, at: tuple, spring: dict, by_name: dict, dim: int) ->
                                 "'to' or 'anchor'")
         if point in spring:
             yield from _length(scene, at + (point,), dim)
-            if not rotates(target) and any(spring[point]):
+            kind = target.get("type", "dynamic")
+            animated = [k for k in ("keyframes", "drive", "parent")
+                        if k in target]
+            if any(spring[point]) and kind == "dynamic" and not rotates(target):
                 yield scene.problem(at + (point,), f"'{name}' is a point mass: a spring "
                                     "can only hold it at its centre of mass", ROTATING_HINT)
+            elif any(spring[point]) and kind == "kinematic" and animated:
+                yield scene.problem(at + (point,), f"'{name}' turns ({animated[0]}): a "
+                                    "spring can only hold it at its centre",
+                                    "attach the spring to a static body or a world anchor")
     if ("to" in spring) == ("anchor" in spring):
         yield scene.problem(at, "give exactly one of 'to' (a body) or 'anchor' (a world "
                                 "point)")

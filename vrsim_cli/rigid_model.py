@@ -46,7 +46,9 @@ class RigidModel:
         torque_in_body: (k,) bool
     spring_a, spring_b: (s,) int64 body indices (spring_b -1: a world anchor);
     spring_point_a: (s, 3) m model coordinates of a; spring_point_b: (s, 3) m model
-        coordinates of b, or the world anchor; spring_k N/m, spring_c N s/m, spring_rest m
+        coordinates of b, or the world anchor (an end on a body that does not rotate
+        holds its lever arm in world axes instead); spring_k N/m, spring_c N s/m,
+        spring_rest m
     """
 
     rot_index: np.ndarray
@@ -219,10 +221,12 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
         else:
             b = -1
             pb = world_b = np.array(_vec3(spring["anchor"], dim))
+        # An end on a body that does not rotate (a static body, a kinematic one without
+        # spin) keeps its orientation: store its lever arm in world axes, once.
         sa.append(a)
         sb.append(b)
-        spa.append(pa)
-        spb.append(pb)
+        spa.append(pa if slot[a] >= 0 else R_full[a] @ pa)
+        spb.append(pb if b < 0 or slot[b] >= 0 else R_full[b] @ pb)
         sk.append(float(spring["stiffness"]))
         sc.append(float(spring.get("damping", 0.0)))
         srest.append(float(spring.get("rest_length", np.linalg.norm(world_b - world_a))))
@@ -298,9 +302,9 @@ def angular_velocity(rigid: RigidModel, R: np.ndarray, L: np.ndarray,
 def spring_ends(rigid: RigidModel, x: np.ndarray, R: np.ndarray):
     """World positions of both ends of every spring and their lever arms from the centres
     of mass: (pa, arm_a, pb, arm_b), each (s, 3); arm_b is 0 at a world anchor."""
-    def arm(body, point):
+    def arm(body, point):  # turning bodies: R p; others store their world arm already
         slot = rigid.rot_slot[body]
-        out = np.zeros_like(point)
+        out = point.copy()
         turning = slot >= 0
         out[turning] = np.einsum("sij,sj->si", R[slot[turning]], point[turning])
         return out
