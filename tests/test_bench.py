@@ -40,3 +40,16 @@ def test_bench_command_writes_report_and_json(invoke, tmp_path):
     assert data["points"] and data["machine"]["cores"]
     assert "| engine | method | dt (s) |" in (tmp_path / "b" / "bench.md").read_text()
     assert invoke("bench", "--problem", "nope").exit_code == 2
+
+
+def test_dzhanibekov_errors_follow_the_integrators_orders():
+    # Orientation error at t = 2 s against scipy's DOP853 (the truth of the problem):
+    # halving dt divides verlet's error by ~4 (order 2: measured 4.0 from 10 ms to 5 ms)
+    # and rk4's by ~16 (measured 17); the slide's euler stays far off (~0.3 rad).
+    from vrsim_cli.bench import _vrsim_dzhanibekov
+
+    points = {(p.method, p.dt): p.error for p in _vrsim_dzhanibekov((0.01, 0.005), 1)}
+    assert 3.0 < points[("verlet", 0.01)] / points[("verlet", 0.005)] < 5.0
+    assert 12.0 < points[("rk4", 0.01)] / points[("rk4", 0.005)] < 24.0
+    assert points[("euler", 0.005)] > 0.1
+    assert points[("dopri5 tol=1e-10", 0.01)] < 1e-8

@@ -217,7 +217,7 @@ def test_check_state_catches_nan_and_runaways():
         assert info.value.body == "b"
 
 
-@pytest.mark.parametrize("integrator", ["euler", "symplectic-euler", "rk4"])
+@pytest.mark.parametrize("integrator", ["euler", "symplectic-euler", "rk4", "verlet", "dopri5"])
 def test_force_window_is_sampled_at_step_starts_for_every_integrator(integrator):
     # 1 N on 1 kg from 0 to 0.005 s at dt = 1 ms: exactly five steps, impulse 0.005 N s,
     # also for rk4 whose later stages lie past the window's end.
@@ -232,3 +232,31 @@ bodies: [{{name: p, mass: 1, forces: [{{force: [1, 0, 0], start: 0, end: 0.005}}
 """)
     model = compile_model(scene)
     assert run(model, make_state(model)).state.body_vel[0, 0] == pytest.approx(0.005, abs=1e-15)
+
+
+@pytest.mark.parametrize("name", ["verlet", "dopri5"])
+def test_second_and_fifth_order_integrators_are_exact_for_projectiles(name):
+    # Constant acceleration: Verlet's half kicks and Dormand-Prince (order 5) both
+    # reproduce x0 + v0 t + a t^2 / 2 up to round-off.
+    x, v, dt = X0.copy(), V0.copy(), 0.01
+    for k in range(150):
+        x, v = INTEGRATORS[name](lambda t, xx, vv: G, k * dt, dt, x, v)
+    assert np.abs(x - closed_form(1.5)).max() < ROUND_OFF_M
+    assert np.abs(v - (V0 + G * 1.5)).max() < ROUND_OFF_M
+
+
+@pytest.mark.parametrize("name,kwargs", [("verlet", {}), ("dopri5", {"tolerance": 1.0})])
+def test_measured_order_on_an_oscillator(name, kwargs):
+    # x'' = -x from (1, 0): x(t) = cos t. dopri5 with tolerance 1 accepts every step
+    # whole, so its fixed-step order shows. log2 of the error ratio tends to the order as
+    # p + O(dt): within 0.1 at these steps.
+    errors = []
+    for dt in (0.1, 0.05, 0.025):
+        x, v = np.array([1.0]), np.array([0.0])
+        steps = round(2.0 / dt)
+        for k in range(steps):
+            x, v = INTEGRATORS[name](lambda t, xx, vv: -xx, k * dt, dt, x, v, **kwargs)
+        # The error of the whole state (x alone can cancel amplitude against phase).
+        errors.append(math.hypot(x[0] - math.cos(2.0), v[0] + math.sin(2.0)))
+    orders = [math.log2(errors[i] / errors[i + 1]) for i in range(2)]
+    assert orders[1] == pytest.approx(ORDER[name], abs=0.1), orders

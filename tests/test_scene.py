@@ -64,7 +64,7 @@ def test_wrong_type(write_scene):
 
 def test_enum_with_did_you_mean(write_scene):
     out = problems(write_scene, "vrsim: 1\nduration: 1\nintegrator: rk5\n")
-    assert out == ["F:3:13: integrator: expected one of 'euler', 'symplectic-euler', 'rk4', "
+    assert out == ["F:3:13: integrator: expected one of 'euler', 'symplectic-euler', 'rk4', 'verlet', 'dopri5', "
                    "got 'rk5' (did you mean 'rk4'?)"]
 
 

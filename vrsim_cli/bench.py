@@ -99,6 +99,71 @@ bodies: [{{name: ball, mass: {p['mass']}, position: {list(p['x0'])},
     return points
 
 
+DZHANIBEKOV = {"size": (0.1, 0.4, 1.0), "mass": 1.0, "omega0": (0.01, 5.0, 0.01),
+               "duration": 2.0, "min_dt": 2e-3, "tolerances": (1e-6, 1e-8, 1e-10)}
+
+
+def dzhanibekov_truth() -> np.ndarray:
+    """(3, 3) orientation of the free box at the end: Euler's equations in the body frame
+    with quaternion kinematics, by scipy's DOP853 at rtol = atol = 1e-12 (an independent
+    formulation and solver; scipy is in the `test` and `bench` extras)."""
+    from scipy.integrate import solve_ivp
+
+    from vrsim_cli.spatial import quat_to_matrix
+
+    a, b, c = DZHANIBEKOV["size"]
+    moments = DZHANIBEKOV["mass"] / 12.0 * np.array([b * b + c * c, a * a + c * c,
+                                                     a * a + b * b])
+
+    def rhs(_t, y):
+        w, (qw, qx, qy, qz) = y[:3], y[3:]
+        wx, wy, wz = w
+        return np.concatenate([np.cross(moments * w, w) / moments, 0.5 * np.array(
+            [-qx * wx - qy * wy - qz * wz, qw * wx + qy * wz - qz * wy,
+             qw * wy - qx * wz + qz * wx, qw * wz + qx * wy - qy * wx])])
+
+    sol = solve_ivp(rhs, (0.0, DZHANIBEKOV["duration"]),
+                    np.concatenate([DZHANIBEKOV["omega0"], [1.0, 0.0, 0.0, 0.0]]),
+                    method="DOP853", rtol=1e-12, atol=1e-12)
+    q = sol.y[3:, -1]
+    return quat_to_matrix(q / np.linalg.norm(q))
+
+
+def rotation_error(R, R_ref) -> float:
+    """rad, the angle between two orientations (accurate for tiny angles)."""
+    return float(2.0 * np.arcsin(min(1.0, np.linalg.norm(R - R_ref) / (2.0 * math.sqrt(2)))))
+
+
+def _vrsim_dzhanibekov(dts, repeats):
+    from vrsim_cli.spatial import quat_to_matrix
+
+    d = DZHANIBEKOV
+    truth = dzhanibekov_truth()
+    runs = [(integrator, dt, "") for integrator in ("euler", "symplectic-euler", "verlet", "rk4")
+            for dt in dts if dt >= d["min_dt"]]
+    runs += [("dopri5", max(dts), f"tolerance: {tol}") for tol in d["tolerances"]]
+    points = []
+    for integrator, dt, extra in runs:
+        scene = parse_scene(f"""
+vrsim: 1
+duration: {d['duration']}
+frame_rate: {1.0 / dt}
+dt: {dt}
+integrator: {integrator}
+{extra}
+gravity: [0, 0, 0]
+bodies: [{{name: box, mass: {d['mass']}, shape: {{type: box, size: {list(d['size'])}}},
+          angular_velocity: {list(d['omega0'])}}}]
+""", "<bench dzhanibekov>")
+        model = compile_model(scene)
+        wall, result = best_time(lambda: run(model, make_state(model)), repeats)
+        error = rotation_error(quat_to_matrix(result.state.body_quat[0]), truth)
+        method = integrator + (f" tol={extra.split()[-1]}" if extra else "")
+        points.append(Point("dzhanibekov", "vrsim", method, model.dt, wall, error,
+                            result.state.step))
+    return points
+
+
 def problems() -> dict[str, Problem]:
     from vrsim_cli import bench_peers
 
@@ -111,7 +176,15 @@ def problems() -> dict[str, Problem]:
         runners={"vrsim": _vrsim_projectile,
                  "mujoco": bench_peers.mujoco_projectile,
                  "pybullet": bench_peers.pybullet_projectile})
-    return {projectile.name: projectile}
+    dzhanibekov = Problem(
+        name="dzhanibekov",
+        description="a torque-free 1 kg box 0.1 x 0.4 x 1.0 m spun at (0.01, 5, 0.01) rad/s "
+                    "about its intermediate axis, for 2 s (through its first flip at 1.70 s)",
+        truth="Euler's equations by scipy DOP853 at rtol 1e-12",
+        error_unit="rad (orientation error at t = 2 s)",
+        target_error=1e-4,
+        runners={"vrsim": _vrsim_dzhanibekov, "mujoco": bench_peers.mujoco_dzhanibekov})
+    return {projectile.name: projectile, dzhanibekov.name: dzhanibekov}
 
 
 # ----------------------------------------------------------------------------- running

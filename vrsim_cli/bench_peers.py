@@ -22,10 +22,28 @@ def available(engine: str) -> bool:
     return importlib.util.find_spec(engine) is not None
 
 
-def mujoco_projectile(dts, repeats):
+def _mujoco_timed(xml: str, steps: int, vel_slice, vel, read_slice, repeats: int):
+    """Best wall time of `steps` mj_steps of the model `xml` from rest with qvel[vel_slice]
+    = vel (one mj_step call, so Python adds nothing per step); returns (wall, the final
+    qpos[read_slice])."""
     import mujoco
 
-    from vrsim_cli.bench import PROJECTILE, Point, best_time, projectile_truth
+    from vrsim_cli.bench import best_time
+
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+
+    def go():
+        mujoco.mj_resetData(model, data)
+        data.qvel[vel_slice] = vel
+        mujoco.mj_step(model, data, nstep=steps)
+        return data.qpos[read_slice].copy()
+
+    return best_time(go, repeats)
+
+
+def mujoco_projectile(dts, repeats):
+    from vrsim_cli.bench import PROJECTILE, Point, projectile_truth
 
     p = PROJECTILE
     points = []
@@ -36,17 +54,8 @@ def mujoco_projectile(dts, repeats):
                 <worldbody><body pos="{' '.join(map(repr, p['x0']))}"><freejoint/>
                 <geom type="sphere" size="0.05" mass="{p['mass']!r}" contype="0"
                 conaffinity="0"/></body></worldbody></mujoco>"""
-            model = mujoco.MjModel.from_xml_string(xml)
-            data = mujoco.MjData(model)
             steps = round(p["duration"] / dt)
-
-            def go():
-                mujoco.mj_resetData(model, data)
-                data.qvel[:3] = p["v0"]
-                mujoco.mj_step(model, data, nstep=steps)
-                return data.qpos[:3].copy()
-
-            wall, pos = best_time(go, repeats)
+            wall, pos = _mujoco_timed(xml, steps, slice(0, 3), p["v0"], slice(0, 3), repeats)
             error = float(np.linalg.norm(pos - projectile_truth(steps * dt)))
             points.append(Point("projectile", "mujoco", integrator, dt, wall, error, steps))
     return points
@@ -89,4 +98,30 @@ def pybullet_projectile(dts, repeats):
                                 error, steps))
     finally:
         pybullet.disconnect(client)
+    return points
+
+
+def mujoco_dzhanibekov(dts, repeats):
+    """The free box in MuJoCo: a box geom (half-sizes) of the same mass on a free joint, no
+    gravity, no contacts; the free joint's angular velocity is in the body frame, which is
+    the world frame at t = 0."""
+    from vrsim_cli.bench import DZHANIBEKOV, Point, dzhanibekov_truth, rotation_error
+    from vrsim_cli.spatial import quat_to_matrix
+
+    d = DZHANIBEKOV
+    truth = dzhanibekov_truth()
+    half = " ".join(repr(0.5 * s) for s in d["size"])
+    points = []
+    for integrator in MUJOCO_INTEGRATORS:
+        for dt in (dt for dt in dts if dt >= d["min_dt"]):
+            xml = f"""<mujoco><option timestep="{dt!r}" integrator="{integrator}"
+                gravity="0 0 0"/><worldbody><body><freejoint/>
+                <geom type="box" size="{half}" mass="{d['mass']!r}" contype="0"
+                conaffinity="0"/></body></worldbody></mujoco>"""
+            steps = round(d["duration"] / dt)
+            # The free joint's qvel[3:] is the angular velocity, qpos[3:7] the quaternion.
+            wall, quat = _mujoco_timed(xml, steps, slice(3, 6), d["omega0"], slice(3, 7),
+                                       repeats)
+            error = rotation_error(quat_to_matrix(quat), truth)
+            points.append(Point("dzhanibekov", "mujoco", integrator, dt, wall, error, steps))
     return points

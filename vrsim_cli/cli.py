@@ -182,9 +182,11 @@ def _output_target(output: str | None, fmt: str | None):
               "frames into this folder (off-screen, OSMesa). Overrides output.frames.dir.")
 @click.option("--video", type=click.Path(dir_okay=False), help="Also make a video of the "
               "frames: .mp4 or .gif (needs frames; pip install 'vrsim-cli[video]').")
+@click.option("--tolerance", type=click.FloatRange(0, 1, min_open=True), help="Error "
+              "tolerance per step of --integrator dopri5 (overrides the scene).")
 @_reports_errors
 def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet,
-        frames_dir, video):
+        frames_dir, video, tolerance):
     """Run SCENE_FILE and write its trajectory."""
     from vrsim_cli.loop import run as run_loop
     from vrsim_cli.model import compile_model
@@ -198,7 +200,8 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     scene = load_scene(scene_file).with_overrides({
         ("duration",): (duration, "--duration"), ("dt",): (dt, "--dt"),
         ("integrator",): (integrator, "--integrator"),
-        ("output", "frames", "dir"): (frames_dir, "--frames")})
+        ("output", "frames", "dir"): (frames_dir, "--frames"),
+        ("tolerance",): (tolerance, "--tolerance")})
     model = compile_model(scene, output_override=target)
     frames = _open_frames(model, video)  # before simulating: a missing OSMesa fails at once
     say = (lambda *a, **k: None) if quiet else click.echo
@@ -323,6 +326,26 @@ def validate(scene_files, quiet):
             for note in model.notes:
                 click.echo(f"note: {file}: {note}", err=True)
     sys.exit(EXIT_INPUT if failed else 0)
+
+
+# ----------------------------------------------------------------------------- mass-properties
+
+
+@cli.command("mass-properties")
+@click.argument("scene_file", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+@_reports_errors
+def mass_properties(scene_file, as_json):
+    """Mass, centre of mass, inertia tensor, principal moments and axes of each body."""
+    from vrsim_cli.mass_properties import format_report, scene_report
+    from vrsim_cli.scene import load_scene
+
+    scene = load_scene(scene_file)
+    rows = scene_report(scene)
+    if as_json:
+        click.echo(json.dumps(rows, indent=2))
+    else:
+        click.echo(format_report(rows, int(scene.data.get("dimension", 3))))
 
 
 # ----------------------------------------------------------------------------- schema

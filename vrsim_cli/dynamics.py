@@ -5,6 +5,8 @@ part `P(t1) = P(t0) + dt v`, `v(t1) = v(t0) + dt a`). Forces: gravity on dynamic
 and the scene's constant, optionally time-windowed forces at the centre of mass.
 Kinematic bodies keep their velocity; static bodies never move. Emitted particles wait at
 their nozzle until their emission step, then leave with their launch velocity.
+Scenes with rotating bodies, springs, torques or forces at points go through `rigid.step`
+(the same stage, slide 5.3 in full); point-mass scenes keep this lean path.
 """
 
 from __future__ import annotations
@@ -54,8 +56,13 @@ def emit(model: Model, state: State) -> State:
 
 def step(model: Model, state: State) -> State:
     """Advance every body by one physics step dt. Pure: returns a new State."""
-    integrate = INTEGRATORS[model.integrator]
     mask = moving_mask(model, state.step)
+    if model.rigid is not None:  # rotation, springs, torques: slide 5.3 in rigid.py
+        from vrsim_cli import rigid
+
+        new = rigid.step(model, state, mask)
+        return emit(model, new) if model.has_emitters else new
+    integrate = INTEGRATORS[model.integrator]
     acc = accelerations(model, active_forces(model, state.t), mask)
 
     def accel(t, x, v):  # forces depend neither on x nor v yet, nor on t within a step

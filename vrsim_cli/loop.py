@@ -24,7 +24,7 @@ from typing import Callable
 
 import numpy as np
 
-from vrsim_cli import dynamics, navigation, scenegraph, sensors
+from vrsim_cli import dynamics, navigation, rigid, scenegraph, sensors
 from vrsim_cli.errors import SimulationError
 from vrsim_cli.model import Model
 from vrsim_cli.state import State
@@ -55,6 +55,12 @@ def check_state(model: Model, state: State) -> None:
                                   body="observer", t=state.t)
     if model.n_body == 0:
         return
+    _check_translation(model, state)
+    if model.rigid is not None:  # rotation not finite, or energy past its bound
+        rigid.check(model, state)
+
+
+def _check_translation(model: Model, state: State) -> None:
     pos, vel = state.body_pos, state.body_vel
     if np.abs(pos).max() < MAX_POSITION_M and np.abs(vel).max() < MAX_SPEED_M_S:
         return  # NaN fails both comparisons, so this one test also catches NaN

@@ -23,13 +23,14 @@ from vrsim_cli.errors import InputError, Problem
 from vrsim_cli.geometry import ANALYTIC
 from vrsim_cli.model_observer import InputModel, ObserverModel, compile_input, compile_observer
 from vrsim_cli.frames_spec import FramesSpec, compile_frames
+from vrsim_cli.rigid_model import ADAPTIVE, RigidModel, compile_rigid, rigid_notes
 from vrsim_cli.scene import Scene
 from vrsim_cli.spatial import (IDENTITY_QUAT, quat_from_axis_angle, quat_from_euler_deg,
                                quat_normalize, quat_rotating, unit)
 
 BODY_DYNAMIC, BODY_KINEMATIC, BODY_STATIC = 0, 1, 2
 BODY_TYPES = {"dynamic": BODY_DYNAMIC, "kinematic": BODY_KINEMATIC, "static": BODY_STATIC}
-INTEGRATORS = ("euler", "symplectic-euler", "rk4")
+INTEGRATORS = ("euler", "symplectic-euler", "rk4", "verlet", "dopri5")
 OUTPUT_FORMATS = ("mcap", "csv", "tum")
 
 DEFAULT_FRAME_RATE = 60.0  # Hz
@@ -99,6 +100,7 @@ class Model:
     # Keyframes, drives and the scene graph (animation.Animation); None: nothing animated.
     # The pos0/quat0 of a body with a parent are local (relative to the parent's frame).
     animation: Animation | None = None
+    rigid: RigidModel | None = None  # rotation, springs, torques (rigid_model.py); None: point masses only
 
     @property
     def n_body(self) -> int:
@@ -140,7 +142,9 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
 
     # --- time grid
     frame_rate = float(data.get("frame_rate", DEFAULT_FRAME_RATE))
-    dt_requested = float(data.get("dt", DEFAULT_DT))
+    # An adaptive integrator chooses its own steps: by default the grid is the frame.
+    dt_requested = float(data.get("dt", DEFAULT_DT if data.get("integrator") not in ADAPTIVE
+                                  else 1.0 / frame_rate))
     frame_interval = 1.0 / frame_rate
     steps_per_frame = _fit_steps(frame_interval, dt_requested)
     dt = frame_interval / steps_per_frame
@@ -181,7 +185,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         velocity = body.get("velocity")
         names.append(body["name"])
         kinds.append(kind)
-        masses.append(float(body["mass"]) if kind == BODY_DYNAMIC else math.inf)
+        masses.append(float(body.get("mass", math.nan)) if kind == BODY_DYNAMIC else math.inf)
         pos0.append(_vec3(body.get("position", [0.0] * dim), dim))
         vel0.append(_vec3(velocity or [0.0] * dim, dim) if kind != BODY_STATIC else [0.0] * 3)
         quat0.append(_orientation(body))
@@ -195,6 +199,8 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
             force_vec.append(_vec3(force["force"], dim))
             force_start.append(float(force.get("start", 0.0)))
             force_end.append(float(force.get("end", math.inf)))
+    rigid = compile_rigid(scene, dim, len(names), kinds, masses, pos0, vel0, quat0,
+                          [(s or {}).get("path") for s in shapes], problems)
     emitted = [_emit(emitter, dim, dt) for emitter in data.get("emitters") or []]
     if problems:  # report before building per-frame data: a bad scene must not cost memory
         raise InputError(problems)
@@ -255,13 +261,14 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         body_index={name: i for i, name in enumerate(names)},
         observer=observer,
         inputs=inputs,
-        notes=_notes(data),
+        notes=_notes(data) + rigid_notes(data),
         # Static and kinematic bodies with analytic shapes (meshes join with collision).
         observer_obstacles=tuple(i for i, (kind, shape) in enumerate(zip(kinds, shapes))
                                  if kind != BODY_DYNAMIC and shape is not None
                                  and shape["type"] in ANALYTIC) if observer else (),
         frames=frames,
         animation=animation,
+        rigid=rigid,
     )
 
 

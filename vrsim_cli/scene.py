@@ -26,6 +26,7 @@ import yaml
 
 from vrsim_cli.animation_spec import body_issues
 from vrsim_cli.errors import InputError, Problem, did_you_mean
+from vrsim_cli.rigid_checks import needs_mass_key, rigid_problems
 
 SCHEMA_RESOURCE = "scene.schema.json"
 MAX_FILE_BYTES = 32 * 1024 * 1024  # a scene is text written by people; larger is a mistake
@@ -362,6 +363,9 @@ def _explain(scene: Scene, err) -> Iterator[Problem]:
     elif kind == "pattern":
         yield scene.problem(path, f"{_show(value)} is not a valid name",
                             err.schema.get("description"))
+    elif kind == "oneOf":  # alternatives (a number or a vector, a list or a generator)
+        yield scene.problem(path, f"{_show(value)} is none of the forms allowed here",
+                            err.schema.get("description"))
     elif kind in ("minLength", "maxLength"):
         yield scene.problem(path, "must not be empty" if kind == "minLength"
                             else f"is longer than {expected} characters")
@@ -428,7 +432,7 @@ def _semantic_problems(scene: Scene) -> Iterator[Problem]:
         if kind == "static" and any(body.get("velocity") or []):
             yield scene.problem(at + ("velocity",), "a static body cannot move",
                                 "use type: kinematic for a body that moves at a given velocity")
-        if kind == "dynamic" and "mass" not in body:
+        if kind == "dynamic" and "mass" not in body and needs_mass_key(body):
             yield scene.problem(at, "missing required key 'mass' for a dynamic body",
                                 "mass in kg, or type: static / kinematic")
         shape = body.get("shape") or {}
@@ -463,6 +467,7 @@ def _semantic_problems(scene: Scene) -> Iterator[Problem]:
                                          f"{kind}")
             if "end" in force and force["end"] <= force.get("start", 0.0):
                 yield scene.problem(fat + ("end",), "must be later than start")
+    yield from rigid_problems(scene, dim)
     total = len(data.get("bodies") or []) + sum(e["count"] for e in data.get("emitters") or [])
     if total > MAX_BODIES:
         yield scene.problem(("emitters",) if data.get("emitters") else ("bodies",),

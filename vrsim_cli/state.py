@@ -32,6 +32,10 @@ class State:
     observer_vel: (3,) m/s, velocity over the last frame
     observer_angvel: (3,) rad/s, world frame, over the last frame
     observer_fall: m/s along up while falling (walk), else 0
+    rot_matrix: (n_rot, 3, 3) R of the rotating bodies (model.rigid.rot_index); it is the
+        orientation the dynamics integrates (body_quat is its quaternion, for output)
+    rot_angmom: (n_rot, 3) kg m^2/s, angular momentum L in the world frame
+    ode_step: s, the adaptive integrator's proposed step for the next interval (0: none)
     """
 
     step: int
@@ -46,6 +50,9 @@ class State:
     observer_vel: np.ndarray | None = None
     observer_angvel: np.ndarray | None = None
     observer_fall: float | None = None  # m/s along up while falling (walk), else 0
+    rot_matrix: np.ndarray | None = None
+    rot_angmom: np.ndarray | None = None
+    ode_step: float = 0.0
 
     def replace(self, **changes) -> "State":
         return dataclasses.replace(self, **changes)
@@ -77,9 +84,18 @@ def make_state(model: Model) -> State:
         body_pos=np.array(model.body_pos0, dtype=float),
         body_vel=np.array(vel, dtype=float),
         body_quat=np.array(model.body_quat0, dtype=float),
-        body_angvel=np.zeros((model.n_body, 3)),
+        body_angvel=_angvel0(model),
+        rot_matrix=None if model.rigid is None else np.array(model.rigid.rot_matrix0),
+        rot_angmom=None if model.rigid is None else np.array(model.rigid.rot_angmom0),
         **observer,
     )
+
+
+def _angvel0(model: Model) -> np.ndarray:
+    angvel = np.zeros((model.n_body, 3))
+    if model.rigid is not None:
+        angvel[model.rigid.rot_index] = model.rigid.rot_angvel0
+    return angvel
 
 
 @dataclass(frozen=True)
