@@ -32,6 +32,9 @@ class State:
     observer_vel: (3,) m/s, velocity over the last frame
     observer_angvel: (3,) rad/s, world frame, over the last frame
     observer_fall: m/s along up while falling (walk), else 0
+    contacts: collision.Contacts found by loop stage 2.3 at this step (None: the scene
+        has no collision block); an intermediate result like MuJoCo's mjData.contact,
+        not part of the state hash
     """
 
     step: int
@@ -46,6 +49,7 @@ class State:
     observer_vel: np.ndarray | None = None
     observer_angvel: np.ndarray | None = None
     observer_fall: float | None = None  # m/s along up while falling (walk), else 0
+    contacts: object | None = None  # collision.Contacts of this step (stage 2.3)
 
     def replace(self, **changes) -> "State":
         return dataclasses.replace(self, **changes)
