@@ -43,7 +43,7 @@ from vrsim_cli.collision.detect import detect
 from vrsim_cli.collision.response_model import IMPULSE, NONE, SLIDE, STOP
 from vrsim_cli.collision.shapes import place
 from vrsim_cli.model import BODY_DYNAMIC
-from vrsim_cli.rotation import exp_so3, quat_from_matrix
+from vrsim_cli.rotation import cross, exp_so3, quat_from_matrix
 
 MAX_EVENTS = 64  # impacts located per step; later ones in the step go to the resting solver
 ROOT_ITERATIONS = 200
@@ -64,7 +64,7 @@ def bodies_of(model, state) -> solver.Bodies:
         world = R @ rigid.rot_inv_inertia @ np.swapaxes(R, -1, -2)
         inv_inertia[rigid.rot_index] = world  # kinematic: rot_inv_inertia is 0
     return solver.Bodies(inv_mass, inv_inertia, state.body_vel.copy(),
-                         state.body_angvel.copy(), np.zeros((n, 3)), state.body_pos)
+                         state.body_angvel.copy(), state.body_pos)
 
 
 def write_back(model, state, bodies: solver.Bodies, stopped=None, dpos=None, dtheta=None):
@@ -82,7 +82,10 @@ def write_back(model, state, bodies: solver.Bodies, stopped=None, dpos=None, dth
     if rigid is not None and rigid.n_rot:
         idx = rigid.rot_index
         free = ~rigid.rot_kinematic
-        L = L + np.where(free[:, None], bodies.d_angmom[idx], 0.0)
+        # Impulses changed omega by I(t)^-1 (sum p x P); L changes by I(t) times that.
+        inertia = R @ rigid.rot_inertia @ np.swapaxes(R, -1, -2)
+        dw = bodies.angvel[idx] - state.body_angvel[idx]
+        L = L + np.where(free[:, None], np.einsum("kij,kj->ki", inertia, dw), 0.0)
         if stopped is not None:
             L = np.where(stopped[idx, None] & free[:, None], 0.0, L)
         if dtheta is not None and np.abs(dtheta[idx]).max() > 0.0:
@@ -112,14 +115,12 @@ def _modes(model, c: Contacts):
 
 
 def _approach(bodies, c: Contacts, rows) -> np.ndarray:
-    """(len(rows),) m/s relative normal velocity (< 0: approaching)."""
-    arm_a = c.point[rows] - bodies.pos[c.body_a[rows]]
-    arm_b = c.point[rows] - bodies.pos[c.body_b[rows]]
-    vr = solver.point_velocity(bodies.vel[c.body_b[rows]], bodies.angvel[c.body_b[rows]],
-                               arm_b) - \
-        solver.point_velocity(bodies.vel[c.body_a[rows]], bodies.angvel[c.body_a[rows]],
-                              arm_a)
-    return (vr * c.normal[rows]).sum(1)
+    """(len(rows),) m/s relative normal velocity at the contact points (< 0: approaching)."""
+    a, b = c.body_a[rows], c.body_b[rows]
+    point, n = c.point[rows], c.normal[rows]
+    vr = bodies.vel[b] + cross(bodies.angvel[b], point - bodies.pos[b]) - \
+        bodies.vel[a] - cross(bodies.angvel[a], point - bodies.pos[a])
+    return (vr * n).sum(1)
 
 
 # ------------------------------------------------------------------------ impacts
@@ -283,12 +284,7 @@ def resting(model, start, state):
         cs = _contact_set(model, bodies, c, rows)
         warm = _warm_start(start, Contacts(*(getattr(c, f)[rows] for f in (
             "body_a", "body_b", "point", "normal", "depth", "toi"))), model)
-        warm_n = warm_t = None
-        if warm is not None:
-            warm_n = (warm * cs.normal).sum(1)
-            warm_t = np.stack([(warm * cs.t1).sum(1), (warm * cs.t2).sum(1)], axis=1)
-        _, _, impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations,
-                                                   warm_n, warm_t)
+        impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm)
         dp, dth = solver.correct_positions(bodies, cs, rm.slop, rm.position_iterations)
         dpos += dp
         dtheta += dth

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vrsim_cli.impulse import inverse_mass_along, point_velocity, restitution_alpha
+from vrsim_cli.impulse import inverse_mass_along, restitution_alpha
 from vrsim_cli.rotation import cross
 
 MAX_ELASTIC_PASSES = 32  # impulses per contact at one impact before eps is set to 0
@@ -43,8 +43,7 @@ class Bodies:
 
     inv_mass: (n,) 1/kg, 0 for static, kinematic and waiting bodies
     inv_inertia: (n, 3, 3) world frame 1/(kg m^2), 0 for bodies that do not turn freely
-    vel: (n, 3) m/s; angvel: (n, 3) rad/s world
-    d_angmom: (n, 3) kg m^2/s, the angular momentum added by impulses (p x P)
+    vel: (n, 3) m/s; angvel: (n, 3) rad/s world (angular momentum follows as I(t) omega)
     pos: (n, 3) m centres of mass (fixed while velocities are solved)
     """
 
@@ -52,47 +51,44 @@ class Bodies:
     inv_inertia: np.ndarray
     vel: np.ndarray
     angvel: np.ndarray
-    d_angmom: np.ndarray
     pos: np.ndarray
 
     @property
     def movable(self) -> np.ndarray:
         return (self.inv_mass > 0.0) | (np.abs(self.inv_inertia).max(axis=(1, 2)) > 0.0)
 
-    def apply(self, a, b, arm_a, arm_b, impulse) -> None:
-        """Impulses (k, 3) on B and minus on A. Rows must not share a movable body
-        (a colour, or k = 1); fixed bodies may repeat (they receive nothing)."""
-        for body, arm, sign in ((b, arm_b, 1.0), (a, arm_a, -1.0)):
-            p = sign * impulse
-            dl = cross(arm, p)
-            self.vel[body] += p * self.inv_mass[body, None]
-            self.angvel[body] += np.einsum("kij,kj->ki", self.inv_inertia[body], dl)
-            self.d_angmom[body] += np.where(self.inv_mass[body, None] > 0.0, dl, 0.0)
-
 
 @dataclass(frozen=True)
 class ContactSet:
-    """Contacts prepared for the solvers (k rows).
+    """Contacts prepared for the solvers (k rows), with everything an impulse needs
+    precomputed along the three directions d_j = (n, t1, t2):
 
-    a, b: (k,) body indices; point, normal: (k, 3); depth: (k,) m; arm_a, arm_b: (k, 3) m
-    restitution, friction: (k,) combined material values; t1, t2: (k, 3) unit tangents
-    k_n, k_t1, k_t2: (k,) 1/kg inverse effective masses along n, t1, t2
+    a, b: (k,) body indices; normal: (k, 3); depth: (k,) m; arm_a, arm_b: (k, 3) m
+    restitution, friction: (k,) combined material values
+    dirs: (k, 3, 3) rows n, t1, t2 (an orthonormal basis)
+    jac_a, jac_b: (k, 3, 3) p x d_j: the normal velocity is d.(v_B - v_A) + (p_B x d).w_B
+        - (p_A x d).w_A
+    lin_a, lin_b: (k, 3, 3) d_j / m; rot_a, rot_b: (k, 3, 3) I^-1 (p x d_j): the velocity
+        changes per unit impulse along d_j
+    inv_k: (k, 3) 1/K along each d_j (the slide's denominator; 0 where K = 0)
     """
 
     a: np.ndarray
     b: np.ndarray
-    point: np.ndarray
     normal: np.ndarray
     depth: np.ndarray
     arm_a: np.ndarray
     arm_b: np.ndarray
     restitution: np.ndarray
     friction: np.ndarray
-    t1: np.ndarray
-    t2: np.ndarray
-    k_n: np.ndarray
-    k_t1: np.ndarray
-    k_t2: np.ndarray
+    dirs: np.ndarray
+    jac_a: np.ndarray
+    jac_b: np.ndarray
+    lin_a: np.ndarray
+    lin_b: np.ndarray
+    rot_a: np.ndarray
+    rot_b: np.ndarray
+    inv_k: np.ndarray
 
     def __len__(self) -> int:
         return len(self.a)
@@ -109,66 +105,98 @@ def tangents(normal: np.ndarray):
     return t1, cross(normal, t1)
 
 
-def prepare(bodies: Bodies, a, b, point, normal, depth, restitution, friction) -> ContactSet:
-    arm_a, arm_b = point - bodies.pos[a], point - bodies.pos[b]
+def prepare(bodies: Bodies, a, b, point, normal, depth, restitution, friction,
+            inv_mass_a=None, inv_mass_b=None, inv_inertia_a=None, inv_inertia_b=None) \
+        -> ContactSet:
+    """Contacts with their lever arms and effective masses. The arm of each body ends at
+    its own witness point (P^K -+ depth/2 n, the point of its surface detection found), not
+    at the midpoint P^K: the two coincide at an impact (depth 0), and in a resting
+    contact the arm of a sphere is then exactly its radius, so rolling is v = omega r.
+    The inverse masses and inertias default to the bodies' (shock propagation passes
+    zeros for the frozen lower body)."""
+    half = 0.5 * depth[:, None] * normal
+    arm_a, arm_b = point + half - bodies.pos[a], point - half - bodies.pos[b]
     t1, t2 = tangents(normal)
-    im, ii = bodies.inv_mass, bodies.inv_inertia
+    im_a = bodies.inv_mass[a] if inv_mass_a is None else inv_mass_a
+    im_b = bodies.inv_mass[b] if inv_mass_b is None else inv_mass_b
+    ii_a = bodies.inv_inertia[a] if inv_inertia_a is None else inv_inertia_a
+    ii_b = bodies.inv_inertia[b] if inv_inertia_b is None else inv_inertia_b
+    dirs = np.stack([normal, t1, t2], axis=1)
+    k = len(a)
+    arm3_a, arm3_b = np.repeat(arm_a, 3, axis=0), np.repeat(arm_b, 3, axis=0)
+    flat = dirs.reshape(-1, 3)
+    jac_a = cross(arm3_a, flat).reshape(k, 3, 3)
+    jac_b = cross(arm3_b, flat).reshape(k, 3, 3)
+    rot_a = np.einsum("kij,kdj->kdi", ii_a, jac_a)
+    rot_b = np.einsum("kij,kdj->kdi", ii_b, jac_b)
+    kk = np.stack([inverse_mass_along(im_a, im_b, ii_a, ii_b, arm_a, arm_b, dirs[:, j])
+                   for j in range(3)], axis=1)
+    inv_k = np.where(kk > 0, 1.0 / np.where(kk > 0, kk, 1.0), 0.0)
+    return ContactSet(a, b, normal, depth, arm_a, arm_b, restitution, friction, dirs, jac_a,
+                      jac_b, im_a[:, None, None] * dirs, im_b[:, None, None] * dirs, rot_a,
+                      rot_b, inv_k)
 
-    def kk(d):
-        return inverse_mass_along(im[a], im[b], ii[a], ii[b], arm_a, arm_b, d)
 
-    return ContactSet(a, b, point, normal, depth, arm_a, arm_b, restitution, friction, t1,
-                      t2, kk(normal), kk(t1), kk(t2))
+def velocity_along(bodies: Bodies, c: ContactSet, j=slice(None)):
+    """Relative velocity v_rel = v_B - v_A at the contact points (slide 5.4.2) along the
+    directions j: (k, 3) for all three, (k,) for one."""
+    dv = bodies.vel[c.b] - bodies.vel[c.a]
+    if isinstance(j, int):
+        return (c.dirs[:, j] * dv).sum(1) + (c.jac_b[:, j] * bodies.angvel[c.b]).sum(1) - \
+            (c.jac_a[:, j] * bodies.angvel[c.a]).sum(1)
+    return np.einsum("kjd,kd->kj", c.dirs[:, j], dv) + \
+        np.einsum("kjd,kd->kj", c.jac_b[:, j], bodies.angvel[c.b]) - \
+        np.einsum("kjd,kd->kj", c.jac_a[:, j], bodies.angvel[c.a])
 
 
-def relative_velocity(bodies: Bodies, c: ContactSet):
-    """(k, 3) m/s: v_rel = v_B - v_A at the contact points (slide 5.4.2)."""
-    return point_velocity(bodies.vel[c.b], bodies.angvel[c.b], c.arm_b) - \
-        point_velocity(bodies.vel[c.a], bodies.angvel[c.a], c.arm_a)
+def apply_along(bodies: Bodies, c: ContactSet, lam, j=slice(None)) -> None:
+    """Impulses sum_j lam_j d_j (lam: (k, len(j)) N s) on B and minus on A. Rows must not
+    share a movable body (a colour, or k = 1); fixed bodies may repeat (their rows of
+    lin and rot are 0, so they receive nothing)."""
+    bodies.vel[c.b] += np.einsum("kj,kjd->kd", lam, c.lin_b[:, j])
+    bodies.angvel[c.b] += np.einsum("kj,kjd->kd", lam, c.rot_b[:, j])
+    bodies.vel[c.a] -= np.einsum("kj,kjd->kd", lam, c.lin_a[:, j])
+    bodies.angvel[c.a] -= np.einsum("kj,kjd->kd", lam, c.rot_a[:, j])
+
+
+def apply_vector(bodies: Bodies, c: ContactSet, impulse) -> None:
+    """Impulse vectors (k, 3) N s, world, on B (minus on A)."""
+    apply_along(bodies, c, np.einsum("kjd,kd->kj", c.dirs, impulse))
 
 
 def _friction(bodies: Bodies, c: ContactSet, lam_t, limit):
     """Coulomb friction: the tangential impulse that stops the sliding at the contact,
     added to the accumulated lam_t (k, 2) and clamped to the cone |lam_t| <= limit (k,).
-    Returns the new lam_t and the impulse applied (k, 3)."""
-    vr = relative_velocity(bodies, c)
-    d1 = -np.where(c.k_t1 > 0, (vr * c.t1).sum(1) / np.where(c.k_t1 > 0, c.k_t1, 1), 0.0)
-    d2 = -np.where(c.k_t2 > 0, (vr * c.t2).sum(1) / np.where(c.k_t2 > 0, c.k_t2, 1), 0.0)
-    new = lam_t + np.stack([d1, d2], axis=1)
+    Returns the new lam_t; the change is applied."""
+    vt = velocity_along(bodies, c, slice(1, 3))
+    new = lam_t - vt * c.inv_k[:, 1:]
     norm = np.linalg.norm(new, axis=1)
-    scale = np.where(norm > limit, limit / np.where(norm > 0, norm, 1.0), 1.0)
-    new = new * scale[:, None]
-    delta = new - lam_t
-    return new, delta[:, :1] * c.t1 + delta[:, 1:] * c.t2
+    new = new * np.where(norm > limit, limit / np.where(norm > 0, norm, 1.0), 1.0)[:, None]
+    apply_along(bodies, c, new - lam_t, slice(1, 3))
+    return new
 
 
 def resolve_impacts(bodies: Bodies, c: ContactSet, rest_speed: float) -> np.ndarray:
     """Apply the impulses of one instant of impact; returns the total impulse on B per
     contact (k, 3) N s. A contact approaching slower than rest_speed gets eps = 0."""
     k = len(c)
-    total = np.zeros((k, 3))
-    if not k:
-        return total
+    lam = np.zeros((k, 3))
     count = np.zeros(k, np.int64)
-    for _ in range(MAX_ELASTIC_PASSES * k + 4 * k + 16):
-        vn = (relative_velocity(bodies, c) * c.normal).sum(1)
-        vn = np.where(c.k_n > 0, vn, 0.0)
+    for _ in range(MAX_ELASTIC_PASSES * k + 4 * k + 16 if k else 0):
+        vn = np.where(c.inv_k[:, 0] > 0, velocity_along(bodies, c, 0), 0.0)
         i = int(np.argmin(vn))
         if vn[i] >= -APPROACH_EPS:
             break
-        one = c.take([i])
+        one = c.take(slice(i, i + 1))
         eps = 0.0 if (-vn[i] < rest_speed or count[i] >= MAX_ELASTIC_PASSES) else \
             float(c.restitution[i])
-        alpha = restitution_alpha(vn[i:i + 1], eps, one.k_n)
-        p = alpha[:, None] * one.normal
-        bodies.apply(one.a, one.b, one.arm_a, one.arm_b, p)
-        total[i] += p[0]
+        alpha = restitution_alpha(vn[i:i + 1], eps, 1.0 / one.inv_k[:, 0])
+        apply_along(bodies, one, alpha[:, None], slice(0, 1))
+        lam[i, 0] += alpha[0]
         if one.friction[0] > 0.0:
-            _, pt = _friction(bodies, one, np.zeros((1, 2)), one.friction * alpha)
-            bodies.apply(one.a, one.b, one.arm_a, one.arm_b, pt)
-            total[i] += pt[0]
+            lam[i, 1:] = _friction(bodies, one, lam[i:i + 1, 1:], one.friction * alpha)[0]
         count[i] += 1
-    return total
+    return np.einsum("kj,kjd->kd", lam, c.dirs)
 
 
 def colours(a, b, movable) -> list[np.ndarray]:
@@ -204,119 +232,149 @@ def levels(n_body: int, a, b, movable) -> np.ndarray:
     return level
 
 
-def solve_resting(bodies: Bodies, c: ContactSet, dt: float, iterations: int,
-                  warm_n=None, warm_t=None):
+def solve_resting(bodies: Bodies, c: ContactSet, dt: float, iterations: int, warm=None):
     """Sequential impulses on the contacts c (restitution 0), then a shock-propagation pass
-    on the normal velocities. Returns (lam_n (k,), lam_t (k, 2), impulse (k, 3)): the
-    accumulated impulses (N s) and their world vector on B.
+    on the normal velocities. `warm`: (k, 3) impulses (N s, world) to start from. Returns
+    the accumulated impulse (k, 3) N s, world, on B of each contact.
 
-    A contact with a gap (depth < 0) may still close at speed -depth/dt (a speculative
-    contact: it is not stopped before it touches)."""
+    Per contact the accumulated normal impulse lam_n stays >= 0 and the friction impulse
+    in the Coulomb cone |lam_t| <= mu lam_n (clamping the accumulated, not the
+    incremental, impulse is what lets warm starting work; Catto 2006). A contact with a
+    gap (depth < 0) may still close at speed -depth/dt (a speculative contact)."""
     k = len(c)
-    lam_n = np.zeros(k) if warm_n is None else np.maximum(warm_n, 0.0)
-    lam_t = np.zeros((k, 2)) if warm_t is None else warm_t.copy()
     if not k:
-        return lam_n, lam_t, np.zeros((0, 3))
+        return np.zeros((0, 3))
+    lam = np.zeros((k, 3)) if warm is None else np.einsum("kjd,kd->kj", c.dirs, warm)
+    lam[:, 0] = np.maximum(lam[:, 0], 0.0)
+    over = np.linalg.norm(lam[:, 1:], axis=1) > c.friction * lam[:, 0]
+    lam[over, 1:] = 0.0
     movable = bodies.movable
     groups = colours(c.a, c.b, movable)
+    subs = [c.take(g) for g in groups]
     target = np.maximum(-c.depth, 0.0) / dt  # m/s allowed approach of a gap
-    if warm_n is not None:
-        lam_t = np.where((np.linalg.norm(lam_t, axis=1) <= c.friction * lam_n)[:, None],
-                         lam_t, 0.0)
-        for g in groups:
-            sub = c.take(g)
-            p = lam_n[g, None] * sub.normal + lam_t[g, :1] * sub.t1 + lam_t[g, 1:] * sub.t2
-            bodies.apply(sub.a, sub.b, sub.arm_a, sub.arm_b, p)
+    if warm is not None:
+        for g, sub in zip(groups, subs):
+            apply_along(bodies, sub, lam[g])
+    rubs = [bool((sub.friction > 0).any()) for sub in subs]
     for _ in range(iterations):
-        for g in groups:
-            sub = c.take(g)
-            if (sub.friction > 0).any():  # friction first, as Box2D: the normal wins last
-                lam_t[g], pt = _friction(bodies, sub, lam_t[g], sub.friction * lam_n[g])
-                bodies.apply(sub.a, sub.b, sub.arm_a, sub.arm_b, pt)
-            vn = (relative_velocity(bodies, sub) * sub.normal).sum(1)
-            safe = np.where(sub.k_n > 0, sub.k_n, 1.0)
-            d = np.where(sub.k_n > 0, -(vn + target[g]) / safe, 0.0)
-            new = np.maximum(lam_n[g] + d, 0.0)
-            bodies.apply(sub.a, sub.b, sub.arm_a, sub.arm_b,
-                         (new - lam_n[g])[:, None] * sub.normal)
-            lam_n[g] = new
-    _shock_velocities(bodies, c, target, movable)
-    impulse = lam_n[:, None] * c.normal + lam_t[:, :1] * c.t1 + lam_t[:, 1:] * c.t2
-    return lam_n, lam_t, impulse
+        for g, sub, rub in zip(groups, subs, rubs):
+            if rub:  # friction first, as Box2D: the normal constraint has the last word
+                lam[g, 1:] = _friction(bodies, sub, lam[g, 1:], sub.friction * lam[g, 0])
+            vn = velocity_along(bodies, sub, 0)
+            new = np.maximum(lam[g, 0] - (vn + target[g]) * sub.inv_k[:, 0], 0.0)
+            apply_along(bodies, sub, (new - lam[g, 0])[:, None], slice(0, 1))
+            lam[g, 0] = new
+    _shock_velocities(bodies, _shock_plan(bodies, c, movable), target)
+    return np.einsum("kj,kjd->kd", lam, c.dirs)
 
 
-def _shock_order(bodies: Bodies, c: ContactSet, movable):
-    """Contacts grouped by the lower level of their bodies, each group coloured; and per
-    contact whether A (resp. B) is the lower body, frozen during the pass."""
+def _shock_plan(bodies: Bodies, c: ContactSet, movable):
+    """Shock propagation order: contacts grouped by the lower level of their two bodies,
+    ground up. In each level the contacts whose other body is lower (frozen) are solved
+    as one block per upper body (`_block`); contacts between bodies of equal level (a
+    cluster touching nothing fixed) are coloured and solved one colour at a time."""
     level = levels(len(movable), c.a, c.b, movable)
     la, lb = level[c.a], level[c.b]
-    freeze_a, freeze_b = la < lb, lb < la
-    order = []
-    for lv in np.unique(np.minimum(la, lb)):
-        idx = np.flatnonzero(np.minimum(la, lb) == lv)
-        order.extend(idx[g] for g in colours(c.a[idx], c.b[idx], movable))
-    return order, freeze_a, freeze_b
+    low = np.minimum(la, lb)
+    plan = []
+    for lv in np.unique(low):
+        idx = np.flatnonzero(low == lv)
+        block = la[idx] != lb[idx]
+        if block.any():
+            rows = idx[block]
+            plan.append(("block", _block(bodies, c, rows, lb[rows] > la[rows])))
+        for g in colours(c.a[idx[~block]], c.b[idx[~block]], movable):
+            rows = idx[~block][g]
+            plan.append(("pairs", (rows, c.take(rows))))
+    return plan
 
 
-def _frozen_view(bodies: Bodies, sub: ContactSet, fa, fb):
-    """Inverse masses with the lower body of each contact made infinite."""
-    im_a = np.where(fa, 0.0, bodies.inv_mass[sub.a])
-    im_b = np.where(fb, 0.0, bodies.inv_mass[sub.b])
-    ii_a = np.where(fa[:, None, None], 0.0, bodies.inv_inertia[sub.a])
-    ii_b = np.where(fb[:, None, None], 0.0, bodies.inv_inertia[sub.b])
-    return im_a, im_b, ii_a, ii_b
+def _block(bodies: Bodies, c: ContactSet, rows, upper_is_b):
+    """The contacts `rows` of one level, each with one frozen (lower) body, as one small
+    least-norm problem per upper body u: find the velocity change (dv, dw) of u, the least
+    in u's kinetic-energy metric W = diag(1/m, I^-1), that changes each contact's normal
+    velocity by b_i: J W J^T lam = b, (dv, dw) = W J^T lam with the row J_i = s_i (n_i,
+    p_i x n_i) (s_i = +1 when u is B). Contacts are padded to the largest count per body;
+    the pseudo-inverse handles coplanar manifolds (4 corners on a face: rank 3)."""
+    upper = np.where(upper_is_b, c.b[rows], c.a[rows])
+    sign = np.where(upper_is_b, 1.0, -1.0)[:, None]
+    jac = np.where(upper_is_b[:, None], c.jac_b[rows, 0], c.jac_a[rows, 0])
+    bodies_u, slot_body = np.unique(upper, return_inverse=True)
+    count = np.bincount(slot_body)
+    order = np.argsort(slot_body, kind="stable")
+    slot = np.empty(len(rows), np.int64)
+    slot[order] = np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count)
+    nb, kmax = len(bodies_u), int(count.max())
+    J = np.zeros((nb, kmax, 6))
+    J[slot_body, slot, :3] = sign * c.normal[rows]
+    J[slot_body, slot, 3:] = sign * jac
+    W = np.zeros((nb, 6, 6))
+    W[:, :3, :3] = bodies.inv_mass[bodies_u, None, None] * np.eye(3)
+    W[:, 3:, 3:] = bodies.inv_inertia[bodies_u]
+    WJt = W @ np.swapaxes(J, 1, 2)
+    return rows, c.take(rows), bodies_u, slot_body, slot, WJt, J @ WJt, (nb, kmax)
 
 
-def _push(bodies: Bodies, sub: ContactSet, fa, fb, im_a, im_b, ii_a, ii_b, p, dpos, dtheta):
-    """Apply impulses p (k, 3) to velocities (dpos None) or as position corrections."""
-    for body, arm, sign, frozen, im, ii in ((sub.b, sub.arm_b, 1.0, fb, im_b, ii_b),
-                                            (sub.a, sub.arm_a, -1.0, fa, im_a, ii_a)):
-        q = sign * p
-        turn = np.einsum("kij,kj->ki", ii, cross(arm, q))
-        if dpos is None:
-            bodies.vel[body] += q * im[:, None]
-            bodies.angvel[body] += turn
-            bodies.d_angmom[body] += np.where((im > 0)[:, None], cross(arm, q), 0.0)
-        else:
-            dpos[body] += q * im[:, None]
-            dtheta[body] += turn
+def _block_solve(blk, b_rows):
+    """Changes (dv, dw) (nb, 3) of the upper bodies for the wanted normal-velocity (or
+    position) changes b_rows >= 0. Contacts that would have to pull (lam < 0) are dropped
+    and the rest solved again (one active-set round)."""
+    _, _, bodies_u, slot_body, slot, WJt, A, (nb, kmax) = blk
+    b = np.zeros((nb, kmax))
+    b[slot_body, slot] = b_rows
+    active = np.zeros((nb, kmax), bool)
+    active[slot_body, slot] = b_rows > 0.0
+    for _ in range(2):
+        mask = active[:, :, None] & active[:, None, :]
+        lam = (np.linalg.pinv(np.where(mask, A, 0.0), rcond=1e-10) @
+               np.where(active, b, 0.0)[..., None])[..., 0]
+        if not (lam < 0.0).any():
+            break
+        active &= lam >= 0.0
+    delta = (WJt @ np.where(active, lam, 0.0)[..., None])[..., 0]
+    return bodies_u, delta[:, :3], delta[:, 3:]
 
 
-def _shock_velocities(bodies: Bodies, c: ContactSet, target, movable) -> None:
+def _shock_velocities(bodies: Bodies, plan, target) -> None:
     """One pass from the ground up: no contact approaches (beyond its speculative
     allowance) afterwards, whatever the mass ratios."""
-    order, freeze_a, freeze_b = _shock_order(bodies, c, movable)
-    for g in order:
-        sub = c.take(g)
-        fa, fb = freeze_a[g], freeze_b[g]
-        views = _frozen_view(bodies, sub, fa, fb)
-        kn = inverse_mass_along(*views, sub.arm_a, sub.arm_b, sub.normal)
-        vn = (relative_velocity(bodies, sub) * sub.normal).sum(1)
-        d = np.where((kn > 0) & (vn + target[g] < 0), -(vn + target[g]) / np.where(
-            kn > 0, kn, 1.0), 0.0)
-        _push(bodies, sub, fa, fb, *views, d[:, None] * sub.normal, None, None)
+    for kind, data in plan:
+        rows, sub = data[0], data[1]
+        vn = velocity_along(bodies, sub, 0) + target[rows]
+        if kind == "block":
+            u, dv, dw = _block_solve(data, np.maximum(-vn, 0.0))
+            bodies.vel[u] += dv
+            bodies.angvel[u] += dw
+        else:
+            d = np.where(vn < 0.0, -vn * sub.inv_k[:, 0], 0.0)
+            apply_along(bodies, sub, d[:, None], slice(0, 1))
 
 
 def correct_positions(bodies: Bodies, c: ContactSet, slop: float, iterations: int):
     """Penetration removal (linearised non-linear Gauss-Seidel with shock propagation):
     returns (dpos (n, 3) m, dtheta (n, 3) rad world rotation vectors) that bring every
     contact's depth down to `slop`. The depth of a contact after corrections so far is
-    depth - n . (dp_B + dtheta_B x p_B - dp_A - dtheta_A x p_A)."""
+    depth - n . (dp_B + dtheta_B x p_B - dp_A - dtheta_A x p_A); the same block and
+    pairwise solves as for velocities, with displacements in place of velocities."""
     n = len(bodies.inv_mass)
     dpos, dtheta = np.zeros((n, 3)), np.zeros((n, 3))
-    if not len(c):
+    if not len(c) or not iterations:
         return dpos, dtheta
-    order, freeze_a, freeze_b = _shock_order(bodies, c, bodies.movable)
+    plan = _shock_plan(bodies, c, bodies.movable)
     for _ in range(iterations):
-        for g in order:
-            sub = c.take(g)
-            fa, fb = freeze_a[g], freeze_b[g]
-            views = _frozen_view(bodies, sub, fa, fb)
-            kn = inverse_mass_along(*views, sub.arm_a, sub.arm_b, sub.normal)
-            moved = dpos[sub.b] + cross(dtheta[sub.b], sub.arm_b) - dpos[sub.a] - \
-                cross(dtheta[sub.a], sub.arm_a)
-            depth = sub.depth - (moved * sub.normal).sum(1)
-            d = np.where((kn > 0) & (depth > slop), (depth - slop) / np.where(kn > 0, kn, 1.0),
-                         0.0)
-            _push(bodies, sub, fa, fb, *views, d[:, None] * sub.normal, dpos, dtheta)
+        for kind, data in plan:
+            sub = data[1]
+            moved = (sub.normal * (dpos[sub.b] - dpos[sub.a])).sum(1) + \
+                (sub.jac_b[:, 0] * dtheta[sub.b]).sum(1) - (sub.jac_a[:, 0] * dtheta[sub.a]).sum(1)
+            excess = np.maximum(sub.depth - moved - slop, 0.0)
+            if kind == "block":
+                u, dv, dw = _block_solve(data, excess)
+                dpos[u] += dv
+                dtheta[u] += dw
+            else:
+                d = (excess * sub.inv_k[:, 0])[:, None]
+                dpos[sub.b] += d * sub.lin_b[:, 0]
+                dtheta[sub.b] += d * sub.rot_b[:, 0]
+                dpos[sub.a] -= d * sub.lin_a[:, 0]
+                dtheta[sub.a] -= d * sub.rot_a[:, 0]
     return dpos, dtheta
