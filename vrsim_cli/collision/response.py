@@ -39,9 +39,10 @@ import numpy as np
 from vrsim_cli.collision import solver
 from vrsim_cli.collision.contacts import Contacts
 from vrsim_cli.collision.continuous import pair_distance, swept_contacts
-from vrsim_cli.collision.detect import detect
+from vrsim_cli.collision import broadphase
+from vrsim_cli.collision.detect import active_geoms, filter_pairs, narrow_phase, to_contacts
 from vrsim_cli.collision.response_model import IMPULSE, NONE, SLIDE, STOP
-from vrsim_cli.collision.shapes import place
+from vrsim_cli.collision.shapes import aabbs, place
 from vrsim_cli.model import BODY_DYNAMIC
 from vrsim_cli.rotation import cross, exp_so3, quat_from_matrix
 
@@ -49,6 +50,22 @@ MAX_EVENTS = 64  # impacts located per step; later ones in the step go to the re
 ROOT_ITERATIONS = 200
 ROOT_TOLERANCE = 1e-13  # of the step: the time of impact is found to this fraction
 WARM_RADIUS = 0.02  # m: a contact within this of last step's (same pair) inherits its impulse
+
+
+def detect(model, state) -> Contacts:
+    """All contacts of `state` with a gap of at most collision.tolerance, as
+    `collision.detect`, but with the broad phase's boxes grown by the tolerance too: a
+    resting contact that position correction left 1e-10 m apart must stay a contact
+    (unpadded boxes would drop it, and it would come back next step as a new impact)."""
+    cm = model.collision
+    if cm.n_geom == 0:
+        return Contacts.empty()
+    world = place(cm, state.body_pos, state.body_quat)
+    lo, hi = aabbs(cm, world)
+    ia, ib = broadphase.candidate_pairs(lo - cm.tolerance, hi + cm.tolerance,
+                                        cm.broad_phase)
+    ia, ib = filter_pairs(model, ia, ib, active_geoms(model, state.step))
+    return to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, cm.tolerance))
 
 
 def bodies_of(model, state) -> solver.Bodies:

@@ -264,7 +264,9 @@ def solve_resting(bodies: Bodies, c: ContactSet, dt: float, iterations: int, war
             new = np.maximum(lam[g, 0] - (vn + target[g]) * sub.inv_k[:, 0], 0.0)
             apply_along(bodies, sub, (new - lam[g, 0])[:, None], slice(0, 1))
             lam[g, 0] = new
-    _shock_velocities(bodies, _shock_plan(bodies, c, movable), target)
+    loaded = lam[:, 0] > 0.0
+    stick = loaded & (np.linalg.norm(lam[:, 1:], axis=1) < c.friction * lam[:, 0])
+    _shock_velocities(bodies, _shock_plan(bodies, c, movable), target, loaded, stick)
     return np.einsum("kj,kjd->kd", lam, c.dirs)
 
 
@@ -292,22 +294,24 @@ def _shock_plan(bodies: Bodies, c: ContactSet, movable):
 def _block(bodies: Bodies, c: ContactSet, rows, upper_is_b):
     """The contacts `rows` of one level, each with one frozen (lower) body, as one small
     least-norm problem per upper body u: find the velocity change (dv, dw) of u, the least
-    in u's kinetic-energy metric W = diag(1/m, I^-1), that changes each contact's normal
-    velocity by b_i: J W J^T lam = b, (dv, dw) = W J^T lam with the row J_i = s_i (n_i,
-    p_i x n_i) (s_i = +1 when u is B). Contacts are padded to the largest count per body;
-    the pseudo-inverse handles coplanar manifolds (4 corners on a face: rank 3)."""
+    in u's kinetic-energy metric W = diag(1/m, I^-1), that changes each contact's
+    velocity along d_j (n, t1, t2) by b: J W J^T lam = b, (dv, dw) = W J^T lam with the
+    row J = s (d_j, p x d_j) (s = +1 when u is B). Three rows per contact, padded to the
+    largest count per body; the pseudo-inverse handles coplanar manifolds (4 corners on
+    a face: rank 3 along n)."""
     upper = np.where(upper_is_b, c.b[rows], c.a[rows])
-    sign = np.where(upper_is_b, 1.0, -1.0)[:, None]
-    jac = np.where(upper_is_b[:, None], c.jac_b[rows, 0], c.jac_a[rows, 0])
+    sign = np.where(upper_is_b, 1.0, -1.0)[:, None, None]
+    jac = np.where(upper_is_b[:, None, None], c.jac_b[rows], c.jac_a[rows])
     bodies_u, slot_body = np.unique(upper, return_inverse=True)
     count = np.bincount(slot_body)
     order = np.argsort(slot_body, kind="stable")
     slot = np.empty(len(rows), np.int64)
     slot[order] = np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count)
     nb, kmax = len(bodies_u), int(count.max())
-    J = np.zeros((nb, kmax, 6))
-    J[slot_body, slot, :3] = sign * c.normal[rows]
-    J[slot_body, slot, 3:] = sign * jac
+    J = np.zeros((nb, kmax, 3, 6))
+    J[slot_body, slot, :, :3] = sign * c.dirs[rows]
+    J[slot_body, slot, :, 3:] = sign * jac
+    J = J.reshape(nb, 3 * kmax, 6)
     W = np.zeros((nb, 6, 6))
     W[:, :3, :3] = bodies.inv_mass[bodies_u, None, None] * np.eye(3)
     W[:, 3:, 3:] = bodies.inv_inertia[bodies_u]
@@ -315,39 +319,54 @@ def _block(bodies: Bodies, c: ContactSet, rows, upper_is_b):
     return rows, c.take(rows), bodies_u, slot_body, slot, WJt, J @ WJt, (nb, kmax)
 
 
-def _block_solve(blk, b_rows):
-    """Changes (dv, dw) (nb, 3) of the upper bodies for the wanted normal-velocity (or
-    position) changes b_rows >= 0. Contacts that would have to pull (lam < 0) are dropped
-    and the rest solved again (one active-set round)."""
+def _block_solve(blk, b_rows, loaded=None, stick=None):
+    """Changes (dv, dw) (nb, 3) of the upper bodies for the wanted velocity (or position)
+    changes b_rows (k, 3) along n, t1, t2. The normal row of a contact takes part when
+    b > 0 or the contact is `loaded`; its tangent rows when it `stick`s. A normal row
+    that is not loaded and would have to pull (lam < 0) is dropped and the rest solved
+    again (one active-set round)."""
     _, _, bodies_u, slot_body, slot, WJt, A, (nb, kmax) = blk
-    b = np.zeros((nb, kmax))
+    b = np.zeros((nb, kmax, 3))
     b[slot_body, slot] = b_rows
-    active = np.zeros((nb, kmax), bool)
-    active[slot_body, slot] = b_rows > 0.0
+    active = np.zeros((nb, kmax, 3), bool)
+    active[slot_body, slot, 0] = b_rows[:, 0] > 0.0
+    may_pull = np.zeros((nb, kmax, 3), bool)
+    if loaded is not None:
+        active[slot_body, slot, 0] |= loaded
+        may_pull[slot_body, slot, 0] = loaded
+    if stick is not None:
+        active[slot_body, slot, 1:] = stick[:, None]
+        may_pull[slot_body, slot, 1:] = True
+    b, active, may_pull = (x.reshape(nb, 3 * kmax) for x in (b, active, may_pull))
     for _ in range(2):
         mask = active[:, :, None] & active[:, None, :]
         lam = (np.linalg.pinv(np.where(mask, A, 0.0), rcond=1e-10) @
                np.where(active, b, 0.0)[..., None])[..., 0]
-        if not (lam < 0.0).any():
+        pulls = active & (lam < 0.0) & ~may_pull
+        if not pulls.any():
             break
-        active &= lam >= 0.0
+        active &= ~pulls
     delta = (WJt @ np.where(active, lam, 0.0)[..., None])[..., 0]
     return bodies_u, delta[:, :3], delta[:, 3:]
 
 
-def _shock_velocities(bodies: Bodies, plan, target) -> None:
-    """One pass from the ground up: no contact approaches (beyond its speculative
-    allowance) afterwards, whatever the mass ratios."""
+def _shock_velocities(bodies: Bodies, plan, target, loaded, stick) -> None:
+    """One pass from the ground up: afterwards no contact approaches (beyond its
+    speculative allowance), whatever the mass ratios, and a contact that carries load
+    (lam_n > 0 after the iterations) neither approaches nor separates, nor slides if
+    friction held it (|lam_t| < mu lam_n): the iterations' leftover error cannot make a
+    resting stack rock, hop or creep."""
     for kind, data in plan:
         rows, sub = data[0], data[1]
-        vn = velocity_along(bodies, sub, 0) + target[rows]
+        want = -velocity_along(bodies, sub)
+        want[:, 0] -= target[rows]
+        want[:, 0] = np.where(loaded[rows], want[:, 0], np.maximum(want[:, 0], 0.0))
         if kind == "block":
-            u, dv, dw = _block_solve(data, np.maximum(-vn, 0.0))
+            u, dv, dw = _block_solve(data, want, loaded[rows], stick[rows])
             bodies.vel[u] += dv
             bodies.angvel[u] += dw
         else:
-            d = np.where(vn < 0.0, -vn * sub.inv_k[:, 0], 0.0)
-            apply_along(bodies, sub, d[:, None], slice(0, 1))
+            apply_along(bodies, sub, (want[:, 0] * sub.inv_k[:, 0])[:, None], slice(0, 1))
 
 
 def correct_positions(bodies: Bodies, c: ContactSet, slop: float, iterations: int):
@@ -368,7 +387,7 @@ def correct_positions(bodies: Bodies, c: ContactSet, slop: float, iterations: in
                 (sub.jac_b[:, 0] * dtheta[sub.b]).sum(1) - (sub.jac_a[:, 0] * dtheta[sub.a]).sum(1)
             excess = np.maximum(sub.depth - moved - slop, 0.0)
             if kind == "block":
-                u, dv, dw = _block_solve(data, excess)
+                u, dv, dw = _block_solve(data, np.stack([excess, 0 * excess, 0 * excess], 1))
                 dpos[u] += dv
                 dtheta[u] += dw
             else:
