@@ -49,6 +49,7 @@ from vrsim_cli.rotation import cross, exp_so3, quat_from_matrix
 MAX_EVENTS = 64  # impacts located per step; later ones in the step go to the resting solver
 ROOT_ITERATIONS = 200
 ROOT_TOLERANCE = 1e-13  # of the step: the time of impact is found to this fraction
+LEAVE_SAMPLES = 16  # a pair that just bounced is looked for apart at h/16, 2h/16, ...
 WARM_RADIUS = 0.02  # m: a contact within this of last step's (same pair) inherits its impulse
 
 
@@ -184,23 +185,31 @@ def _pair_geoms(model, a, b):
 
 
 def _first_impact(model, s, end, h: float, touching: set, advance):
-    """(tau, candidate body pairs) of the first impact in (0, h] of the motion from s
-    (free flight to `end`), or None."""
+    """Time tau in [0, h] of the first impact of the motion from s (free flight to `end`),
+    or None. Candidates: pairs penetrating at the end that did not touch at s; touching
+    pairs approaching faster than rest_speed (impact now or soon); touching pairs leaving
+    faster than rest_speed (a ball that just bounced may land again within the step);
+    pairs swept through (continuous detection)."""
     rm, cm = model.response, model.collision
     c1 = detect(model, end)
     pairs = []
-    fast = set()
-    if touching:  # touching at the start: an impact only when approaching fast
+    fast, leaving = set(), set()
+    if touching:
         c0 = detect(model, s)
         keep = np.flatnonzero(_modes(model, c0) != NONE)
         if len(keep):
             vn = _approach(bodies_of(model, s), c0, keep)
-            fast = {(int(c0.body_a[k]), int(c0.body_b[k]))
-                    for k, v in zip(keep, vn) if v < -rm.rest_speed}
+            for k, v in zip(keep.tolist(), vn.tolist()):
+                pair = (int(c0.body_a[k]), int(c0.body_b[k]))
+                if v < -rm.rest_speed:
+                    fast.add(pair)
+                elif v > rm.rest_speed:
+                    leaving.add(pair)
+    leaving -= fast
     mode1 = _modes(model, c1)
     for k in np.flatnonzero((mode1 != NONE) & (c1.depth >= 0.0)).tolist():
         pair = (int(c1.body_a[k]), int(c1.body_b[k]))
-        if pair not in touching or pair in fast:
+        if pair not in touching or pair in fast or pair in leaving:
             pairs.append(pair)
     hi = h
     if cm.continuous:
@@ -216,17 +225,30 @@ def _first_impact(model, s, end, h: float, touching: set, advance):
     ia, ib = _pair_geoms(model, np.array([p[0] for p in pairs]), np.array([p[1] for p in
                                                                             pairs]))
 
-    def gap(tau):
+    def gaps(tau):
         st = s if tau == 0.0 else advance(model, s, tau)
-        return float(pair_distance(cm, place(cm, st.body_pos, st.body_quat), ia, ib).min())
+        return pair_distance(cm, place(cm, st.body_pos, st.body_quat), ia, ib)
 
-    g_lo = gap(0.0)
-    if g_lo <= 0.0:
+    def gap(tau):
+        return float(gaps(tau).min())
+
+    d0 = gaps(0.0)
+    back = np.array([p in leaving for p in pairs])
+    if (d0[~back] <= 0.0).any():
         return 0.0
+    lo, g_lo = 0.0, float(d0.min())
+    if g_lo <= 0.0:  # a leaving pair still touches: find when it is apart, then the root
+        for j in range(1, LEAVE_SAMPLES + 1):
+            lo = h * j / LEAVE_SAMPLES
+            g_lo = gap(lo)
+            if g_lo > 0.0:
+                break
+        else:
+            return None
     g_hi = gap(hi)
-    if g_hi > 0.0:  # swept through: detection's time of impact, within its tolerance
-        return hi
-    lo, side = 0.0, 0
+    if g_hi > 0.0:  # swept through: detection's time of impact, within its tolerance;
+        return hi if lo == 0.0 else None  # or the leaving pair has not come back
+    side = 0
     for _ in range(ROOT_ITERATIONS):
         if hi - lo <= ROOT_TOLERANCE * h or g_hi == 0.0:
             break
@@ -296,6 +318,9 @@ def resting(model, start, state):
                     dpos[body] = np.where(np.abs(push) > np.abs(dpos[body]), push,
                                           dpos[body])
     rows = np.flatnonzero(mode == IMPULSE)
+    if len(rows):  # a gap closing fast is the next step's impact, located exactly then
+        closing = (c.depth[rows] < 0.0) & (_approach(bodies, c, rows) < -rm.rest_speed)
+        rows = rows[~closing]
     dtheta = np.zeros((model.n_body, 3))
     if len(rows):
         cs = _contact_set(model, bodies, c, rows)
@@ -332,7 +357,8 @@ def step(model, before, after, advance):
     `before` (dynamics and scene graph); `advance(model, state, h)`: the dynamics
     integrated over h <= dt from `state` (the loop passes `dynamics.advance`)."""
     prev = before.contacts if before.contacts is not None else detect(model, before)
-    touching = prev.pairs()
+    at_end = np.isnan(prev.toi)  # the impact rows are from earlier in the last step
+    touching = set(zip(prev.body_a[at_end].tolist(), prev.body_b[at_end].tolist()))
     s, end = before, after
     t_end = after.t
     event_contacts, event_impulses = [], []

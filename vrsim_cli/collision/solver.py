@@ -265,7 +265,10 @@ def solve_resting(bodies: Bodies, c: ContactSet, dt: float, iterations: int, war
             apply_along(bodies, sub, (new - lam[g, 0])[:, None], slice(0, 1))
             lam[g, 0] = new
     loaded = lam[:, 0] > 0.0
-    stick = loaded & (np.linalg.norm(lam[:, 1:], axis=1) < c.friction * lam[:, 0])
+    # Sticking: the friction impulse that would stop the sliding now fits in the cone of
+    # the final normal impulse (the last clamp used an earlier, smaller lam_n).
+    needed = lam[:, 1:] - velocity_along(bodies, c, slice(1, 3)) * c.inv_k[:, 1:]
+    stick = loaded & (np.linalg.norm(needed, axis=1) <= c.friction * lam[:, 0])
     _shock_velocities(bodies, _shock_plan(bodies, c, movable), target, loaded, stick)
     return np.einsum("kj,kjd->kd", lam, c.dirs)
 
