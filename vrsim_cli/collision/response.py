@@ -290,9 +290,12 @@ def _warm_start(before, c: Contacts, model):
     return vec
 
 
-def resting(model, start, state):
-    """Resting contact at the end of a step (`state`; `start`: the step's start, for stop
-    and warm starting). Returns the corrected state with contacts and impulses."""
+def resting(model, start, state, last=None):
+    """Resting contact at the end of a step (`state`; `start`: the step's start, for warm
+    starting; `last`: the state after the step's last impact, default `start`: a `stop`
+    body goes back to its pose there, the last pose known not to collide). Returns the
+    corrected state with contacts and impulses."""
+    last = start if last is None else last
     rm = model.response
     c = detect(model, state)
     mode = _modes(model, c)
@@ -305,7 +308,7 @@ def resting(model, start, state):
         stopped[body] = bodies.inv_mass[body] > 0.0
     dpos = np.zeros((model.n_body, 3))
     if stopped.any():
-        dpos[stopped] = start.body_pos[stopped] - state.body_pos[stopped]
+        dpos[stopped] = last.body_pos[stopped] - state.body_pos[stopped]
     slide = np.flatnonzero(mode == SLIDE)
     if len(slide):
         _slide(bodies, c, slide[_approach(bodies, c, slide) < 0.0])
@@ -335,7 +338,7 @@ def resting(model, start, state):
         dtheta[stopped] = 0.0
     new = write_back(model, state, bodies, stopped, dpos, dtheta)
     if stopped.any() and model.rigid is not None and model.rigid.n_rot:
-        new = _restore_orientation(model, start, new, stopped)
+        new = _restore_orientation(model, last, new, stopped)
     return new, c, impulse
 
 
@@ -386,7 +389,7 @@ def step(model, before, after, advance):
                           body_quat=np.where(kin[:, None], after.body_quat, end.body_quat),
                           body_angvel=np.where(kin[:, None], after.body_angvel,
                                                end.body_angvel))
-    new, c, impulse = resting(model, before, end)
+    new, c, impulse = resting(model, before, end, s)
     contacts = Contacts.concatenate([c] + event_contacts)
     impulses = np.concatenate([impulse] + event_impulses) if event_impulses else impulse
     return new.replace(contacts=contacts, contact_impulse=impulses.reshape(-1, 3))
