@@ -340,3 +340,25 @@ def test_scenarios_write_contact_impulses_to_mcap(invoke, tmp_path):
     assert hits, "the first bounce is sampled"
     first = hits[0]
     assert first["impulse"][1] == pytest.approx(1.8 * math.sqrt(2 * G * 1.0), rel=1e-9)
+
+
+def test_a_box_tumbles_down_the_stairs_and_settles_flat():
+    """scenarios/stairs.yaml: the box ends at rest lying flat on the floor (centre at half
+    its size, 0.15 m, to 1e-6 m) beyond the last step, and the mechanical energy never
+    grows by more than the weight times the contact tolerance (position correction may
+    lift a body out of a penetration no deeper than that)."""
+    text = (SCENARIOS / "stairs.yaml").read_text().replace("output: {file: stairs.mcap", "#")
+    model, states, final = simulate(text)
+    box = model.body_index["box"]
+    assert abs(final.body_pos[box, 1] - 0.15) <= 1e-6
+    assert final.body_pos[box, 0] > 0.0
+    assert np.abs(final.body_vel[box]).max() <= 1e-9
+    m = model.body_mass[box]
+
+    def energy(s):
+        return m * G * s.body_pos[box, 1] + 0.5 * m * s.body_vel[box] @ s.body_vel[box] + \
+            0.5 * s.rot_angmom[0] @ s.body_angvel[box]
+
+    e = np.array([energy(s) for s in states])
+    assert np.max(e - np.minimum.accumulate(e)) <= m * G * model.collision.tolerance
+    assert e[-1] < 0.2 * e[0]
