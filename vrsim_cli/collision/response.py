@@ -184,18 +184,19 @@ def _pair_geoms(model, a, b):
     return body_geom[a], body_geom[b]
 
 
-def _first_impact(model, s, end, h: float, touching: set, advance):
+def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=None):
     """Time tau in [0, h] of the first impact of the motion from s (free flight to `end`),
     or None. Candidates: pairs penetrating at the end that did not touch at s; touching
     pairs approaching faster than rest_speed (impact now or soon); touching pairs leaving
     faster than rest_speed (a ball that just bounced may land again within the step);
-    pairs swept through (continuous detection)."""
+    pairs swept through (continuous detection). c0, c1: the contacts of s and `end` when
+    the caller has them."""
     rm, cm = model.response, model.collision
-    c1 = detect(model, end)
+    c1 = detect(model, end) if c1 is None else c1
     pairs = []
     fast, leaving = set(), set()
     if touching:
-        c0 = detect(model, s)
+        c0 = detect(model, s) if c0 is None else c0
         keep = np.flatnonzero(_modes(model, c0) != NONE)
         if len(keep):
             vn = _approach(bodies_of(model, s), c0, keep)
@@ -290,14 +291,14 @@ def _warm_start(before, c: Contacts, model):
     return vec
 
 
-def resting(model, start, state, last=None):
+def resting(model, start, state, last=None, c=None):
     """Resting contact at the end of a step (`state`; `start`: the step's start, for warm
     starting; `last`: the state after the step's last impact, default `start`: a `stop`
     body goes back to its pose there, the last pose known not to collide). Returns the
-    corrected state with contacts and impulses."""
+    corrected state with contacts and impulses. c: the contacts of `state` if known."""
     last = start if last is None else last
     rm = model.response
-    c = detect(model, state)
+    c = detect(model, state) if c is None else c
     mode = _modes(model, c)
     impulse = np.zeros((len(c), 3))
     bodies = bodies_of(model, state)
@@ -361,15 +362,22 @@ def step(model, before, after, advance):
     integrated over h <= dt from `state` (the loop passes `dynamics.advance`)."""
     prev = before.contacts if before.contacts is not None else detect(model, before)
     at_end = np.isnan(prev.toi)  # the impact rows are from earlier in the last step
-    touching = set(zip(prev.body_a[at_end].tolist(), prev.body_b[at_end].tolist()))
+    prev = Contacts(*(getattr(prev, f)[at_end] for f in (
+        "body_a", "body_b", "point", "normal", "depth", "toi")))
+    touching = prev.pairs()
     s, end = before, after
     t_end = after.t
     event_contacts, event_impulses = [], []
+    # Last step's contacts stand for this step's start (before its position correction,
+    # which moved them by at most the penetration): they only sort pairs into touching,
+    # approaching and leaving. The end's contacts serve the impact search and, when no
+    # impact cuts the step, the resting solver.
+    c0, c_end = prev, detect(model, after)
     for _ in range(MAX_EVENTS):
         h = t_end - s.t
         if h <= 0.0:
             break
-        tau = _first_impact(model, s, end, h, touching, advance)
+        tau = _first_impact(model, s, end, h, touching, advance, c0, c_end)
         if tau is None:
             break
         at = s if tau == 0.0 else advance(model, s, tau)
@@ -379,8 +387,9 @@ def step(model, before, after, advance):
                                        np.full(len(c), at.t - before.t)))
         event_impulses.append(imp)
         touching = c.pairs()
-        s = at
+        s, c0 = at, c
         end = advance(model, s, t_end - s.t)
+        c_end = None
     if s is not before:  # the step was cut: kinematic bodies follow the scene graph
         kin = model.body_type != BODY_DYNAMIC
         end = end.replace(step=after.step, t=after.t,
@@ -389,7 +398,7 @@ def step(model, before, after, advance):
                           body_quat=np.where(kin[:, None], after.body_quat, end.body_quat),
                           body_angvel=np.where(kin[:, None], after.body_angvel,
                                                end.body_angvel))
-    new, c, impulse = resting(model, before, end, s)
+    new, c, impulse = resting(model, before, end, s, c_end if s is before else None)
     contacts = Contacts.concatenate([c] + event_contacts)
     impulses = np.concatenate([impulse] + event_impulses) if event_impulses else impulse
     return new.replace(contacts=contacts, contact_impulse=impulses.reshape(-1, 3))
