@@ -362,3 +362,35 @@ def test_a_box_tumbles_down_the_stairs_and_settles_flat():
     e = np.array([energy(s) for s in states])
     assert np.max(e - np.minimum.accumulate(e)) <= m * G * model.collision.tolerance
     assert e[-1] < 0.2 * e[0]
+
+
+def test_a_kinematic_paddle_pushes_with_infinite_mass():
+    """A kinematic box moving at 2 m/s hits a ball at rest, eps = 1, no gravity: against
+    infinite mass the ball leaves at 2 * 2 - 0 = 4 m/s (its velocity reflected in the
+    paddle's frame), and the paddle keeps its 2 m/s. Round-off bounds."""
+    _, _, final = simulate("""
+vrsim: 1
+duration: 0.5
+frame_rate: 100
+dt: 0.01
+integrator: verlet
+gravity: [0, 0, 0]
+collision: {}
+bodies:
+  - {name: paddle, type: kinematic, position: [-0.5, 0, 0], velocity: [2, 0, 0], shape: {type: box, size: [0.2, 1, 1]}}
+  - {name: ball, mass: 1, position: [0.5, 0, 0], shape: {type: sphere, radius: 0.1}, material: {restitution: 1, friction: 0}}
+""")
+    assert abs(final.body_vel[1, 0] - 4.0) <= 1e-12
+    assert np.abs(final.body_vel[1, 1:]).max() <= 1e-12
+    assert final.body_vel[0, 0] == 2.0
+
+
+def test_response_none_everywhere_is_detection_only():
+    model = compile_model(parse_scene("""
+vrsim: 1
+duration: 0.1
+collision: {response: none}
+bodies:
+  - {name: a, mass: 1, shape: {type: sphere, radius: 0.1}}
+"""))
+    assert model.collision is not None and model.response is None

@@ -12,6 +12,7 @@ Simulated time is always `step_index * dt`, never a running sum, so it does not 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -243,6 +244,9 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
             from vrsim_cli.collision.response_model import compile_response
             response = compile_response(scene, len(names), _vec3(gravity, dim),
                                         collision.tolerance, problems)
+            if response is not None and rigid is not None and BODY_KINEMATIC in kinds:
+                # a kinematic body that hits others does work on them: energy may grow
+                rigid = dataclasses.replace(rigid, energy_guard=False)
         if problems:
             raise InputError(problems)
 
