@@ -394,3 +394,27 @@ bodies:
   - {name: a, mass: 1, shape: {type: sphere, radius: 0.1}}
 """))
     assert model.collision is not None and model.response is None
+
+
+def test_2d_contacts_stay_in_the_plane_and_a_disc_rolls_at_two_thirds():
+    """In 2D a sphere is a disc (I = m r^2 / 2): launched sliding at v0 it rolls at
+    v0 / (1 + 1/2) = 2/3 v0 (angular momentum about the contact point). A tumbling
+    rectangle lands on its corners: nothing leaves the plane (z, and omega's x and y,
+    stay at round-off)."""
+    _, states, final = simulate("""
+vrsim: 1
+dimension: 2
+duration: 2
+frame_rate: 100
+dt: 0.01
+integrator: verlet
+collision: {}
+bodies:
+  - {name: ground, type: static, shape: {type: plane, normal: [0, 1]}}
+  - {name: box, mass: 1, position: [0, 1], velocity: [1, 0], angle_deg: 30, angular_velocity: 3, shape: {type: box, size: [0.4, 0.2]}, material: {restitution: 0.4}}
+  - {name: disc, mass: 1, position: [2, 0.1], velocity: [1, 0], shape: {type: sphere, radius: 0.1}}
+""")
+    assert abs(final.body_vel[2, 0] - 2.0 / 3.0) <= 1e-12
+    assert max(np.abs(s.body_pos[:, 2]).max() for s in states) <= 1e-12
+    assert max(np.abs(s.body_angvel[:, :2]).max() for s in states) <= 1e-12
+    assert abs(final.body_pos[1, 1] - 0.1) <= 1e-6  # the box lies flat

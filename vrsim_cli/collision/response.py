@@ -66,7 +66,12 @@ def detect(model, state) -> Contacts:
     ia, ib = broadphase.candidate_pairs(lo - cm.tolerance, hi + cm.tolerance,
                                         cm.broad_phase)
     ia, ib = filter_pairs(model, ia, ib, active_geoms(model, state.step))
-    return to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, cm.tolerance))
+    c = to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, cm.tolerance))
+    if model.dimension == 2 and len(c):  # a lamina: box corners at z = +-depth are its edge
+        point = c.point.copy()
+        point[:, 2] = 0.0
+        c = Contacts(c.body_a, c.body_b, point, c.normal, c.depth, c.toi)
+    return c
 
 
 def bodies_of(model, state) -> solver.Bodies:

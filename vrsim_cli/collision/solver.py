@@ -98,7 +98,11 @@ class ContactSet:
 
 
 def tangents(normal: np.ndarray):
-    """Two unit tangents (k, 3) completing each normal to a right-handed basis."""
+    """Two unit tangents (k, 3) completing each normal to a right-handed basis. A normal
+    in the xy plane (all of 2D) gets t1 in the plane and t2 = +-z."""
+    if len(normal) and not normal[:, 2].any():
+        t1 = np.stack([-normal[:, 1], normal[:, 0], np.zeros(len(normal))], axis=1)
+        return t1, cross(normal, t1)
     helper = np.where((np.abs(normal[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     t1 = cross(normal, helper)
     t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
