@@ -215,7 +215,8 @@ def box_capsule(cm, world, ia, ib, margin):
     """Box (A) and capsule (B). The box's signed distance is convex, so along the capsule's
     axis it has one minimum: a golden-section search finds the deepest axis point, and the
     contact is that of a sphere there. When an end sphere touches the same face (the
-    capsule lies on the box) the end points replace it: a two-point manifold."""
+    capsule lies on the box, one end as deep as the deepest point) the end points replace
+    it: a two-point manifold."""
     c, rot, half = world.pos[ia], world.rot[ia], world.half[ia]
     a, b = _segment(world, ib)
     r = cm.geom_radius[ib]
@@ -239,8 +240,10 @@ def box_capsule(cm, world, ia, ib, margin):
                             np.repeat(half, 2, axis=0), np.stack([a, b], 1).reshape(-1, 3),
                             np.repeat(r, 2))
     same = (_dot(ne, np.repeat(n, 2, axis=0)) > 0.999) & (de >= -margin)
-    ends = same.reshape(-1, 2)
-    use_ends = ends.sum(axis=1) == 2
+    # Ends replace the deepest point only when one of them is as deep: otherwise the axis
+    # dips between them (over an edge) and the deepest point is the contact.
+    deepest_end = de.reshape(-1, 2).max(axis=1) >= depth - 1e-12 * (1.0 + np.abs(depth))
+    use_ends = same.reshape(-1, 2).all(axis=1) & deepest_end
     pair = np.concatenate([np.flatnonzero(~use_ends), np.repeat(np.flatnonzero(use_ends), 2)])
     take = np.repeat(use_ends, 2)
     return _keep(pair, np.concatenate([point[~use_ends], pe[take]]),
@@ -294,6 +297,7 @@ def _face_points(fc, n, u, v, hu, hv, inc_c, inc_n, inc_u, inc_v, inc_hu, inc_hv
     px = np.concatenate([ax, bx] + cx, axis=1)  # (P, 24)
     py = np.concatenate([ay, by] + cy, axis=1)
     ok = np.concatenate([a_ok, b_ok] + c_ok, axis=1)
+    px, py = np.where(ok, px, 0.0), np.where(ok, py, 0.0)  # no NaN from parallel edges
     # Lift each 2D point onto the incident face's plane along n.
     base = fc[:, None] + px[..., None] * u[:, None] + py[..., None] * v[:, None]
     inc_d = _dot(inc_n, inc_c)
@@ -377,6 +381,12 @@ def box_box(cm, world, ia, ib, margin):
         for q in range(len(sel)):
             idx = np.flatnonzero(ok[q])
             if not len(idx):
+                # Apart within the margin with faces that do not overlap side by side:
+                # the incident corner nearest to the reference plane, at the axis' gap.
+                corner = int(np.argmax(np.where(np.arange(24) < 4, depth[q], -np.inf)))
+                mid = pts[q, corner] + nr[q] * (0.5 * depth[q, corner])
+                out.append((sel[q:q + 1], mid[None], n[sel[q]][None],
+                            depth_sat[sel[q]:sel[q] + 1]))
                 continue
             chosen = idx[_reduce(pts[q, idx], depth[q, idx])]
             mid = pts[q, chosen] + nr[q] * (0.5 * depth[q, chosen])[:, None]
