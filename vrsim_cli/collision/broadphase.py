@@ -44,7 +44,8 @@ def sweep_and_prune(lo, hi):
     p, q = _pairs_in_runs(np.arange(n), end)
     i, j = order[p], order[q]
     keep = _overlap(lo, hi, i, j)
-    return i[keep], j[keep]
+    i, j = i[keep], j[keep]
+    return np.minimum(i, j), np.maximum(i, j)
 
 
 def uniform_grid(lo, hi):

@@ -118,8 +118,9 @@ def time_of_impact(cm, body_pos, body_quat, body_vel, body_angvel, ia, ib, dt: f
     rows = np.concatenate([ba[todo], bb[todo]])
     w_a, w_b = np.linalg.norm(angvel[ba[todo]], axis=1), np.linalg.norm(angvel[bb[todo]],
                                                                         axis=1)
-    spin = np.where(w_a > 0, w_a * cm.geom_rbound[ia[todo]], 0.0) + \
-        np.where(w_b > 0, w_b * cm.geom_rbound[ib[todo]], 0.0)
+    # Planes have an infinite bounding radius but never turn: 0 * inf must not be NaN.
+    spin = w_a * np.where(w_a > 0, cm.geom_rbound[ia[todo]], 0.0) + \
+        w_b * np.where(w_b > 0, cm.geom_rbound[ib[todo]], 0.0)
     mu = np.linalg.norm(vel[bb[todo]] - vel[ba[todo]], axis=1) + spin
     t = np.zeros(m)
     result = np.full(m, np.inf)
