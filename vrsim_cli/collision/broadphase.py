@@ -20,7 +20,12 @@ LARGE_FACTOR = 8.0  # boxes larger than this many median sizes are tested agains
 
 
 def _overlap(lo, hi, i, j):
-    return np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
+    """(k,) bool: do boxes i and j (k,) overlap (touching counts)? Axis by axis, so
+    each comparison touches one column (3x less memory traffic than on (k, 3) rows)."""
+    keep = (lo[i, 0] <= hi[j, 0]) & (lo[j, 0] <= hi[i, 0])
+    for axis in (1, 2):
+        keep &= (lo[i, axis] <= hi[j, axis]) & (lo[j, axis] <= hi[i, axis])
+    return keep
 
 
 def _pairs_in_runs(start, end):
@@ -72,9 +77,12 @@ def uniform_grid(lo, hi):
     run_end = np.searchsorted(key, key, side="right")
     p, q = _pairs_in_runs(np.arange(len(key)), run_end)
     i, j = body[p], body[q]
-    # Keep a pair only in the cell holding the lower corner of the two boxes' overlap.
+    # Keep a pair only in the cell holding the lower corner of the two boxes' overlap
+    # (cheap integer test first, then the exact overlap on the survivors).
     home = np.floor((np.maximum(lo[i], lo[j]) - origin) / cell).astype(np.int64)
-    keep = np.all(home == cells[p], axis=1) & _overlap(lo, hi, i, j)
+    once = np.all(home == cells[p], axis=1)
+    i, j = i[once], j[once]
+    keep = _overlap(lo, hi, i, j)
     i, j = i[keep], j[keep]
     return np.minimum(i, j), np.maximum(i, j)
 
