@@ -54,3 +54,8 @@ class Contacts:
     def pairs(self) -> set:
         """The distinct (body_a, body_b) pairs in contact."""
         return set(zip(self.body_a.tolist(), self.body_b.tolist()))
+
+
+def no_pair_contacts():
+    """The empty result of a pair function: (pair, point, normal, depth) with k = 0."""
+    return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from vrsim_cli.collision import broadphase, fcl_adapter
-from vrsim_cli.collision.contacts import Contacts
+from vrsim_cli.collision.contacts import Contacts, no_pair_contacts
 from vrsim_cli.collision.narrowphase import DISPATCH
 from vrsim_cli.collision.shapes import aabbs, place
 from vrsim_cli.model import BODY_STATIC
@@ -58,7 +58,7 @@ def narrow_phase(cm, world, ia, ib, margin: float):
                                                                    ib[sel], margin)
         parts.append((sel[pair], point, normal, depth))
     if not parts:
-        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+        return no_pair_contacts()
     pair, point, normal, depth = (np.concatenate(x) for x in zip(*parts))
     order = np.argsort(pair, kind="stable")
     return pair[order], point[order], normal[order], depth[order]

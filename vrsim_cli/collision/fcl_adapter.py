@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from vrsim_cli.collision.shapes import (BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE)
+from vrsim_cli.collision.contacts import no_pair_contacts
+from vrsim_cli.collision.shapes import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
 
 MAX_CONTACTS = 8  # per pair: enough for a face-on-face mesh contact, bounded output
 # Maps fcl's local z (capsule, cylinder axis) to vrsim's local y: a -90 deg turn about x.
@@ -103,7 +104,7 @@ def pair_contacts(cm, world, ia, ib, margin):
                 out_normal.append((pb - pa) / d if d > 0 else np.array([0.0, 1.0, 0.0]))
                 out_depth.append(-d)
     if not out_pair:
-        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+        return no_pair_contacts()
     return (np.array(out_pair, np.int64), np.array(out_point), np.array(out_normal),
             np.array(out_depth))
 

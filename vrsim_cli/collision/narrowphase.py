@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.collision.contacts import no_pair_contacts
 from vrsim_cli.collision.shapes import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
 
 _EPS = 1e-12
@@ -159,7 +160,7 @@ def plane_vertices(cm, world, ia, ib, margin):
         depth = cm.geom_plane_offset[a] - v @ n
         out.append(_deepest(np.array([p]), v[None], depth[None], n[None], margin))
     if not out:
-        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+        return no_pair_contacts()
     return tuple(np.concatenate(x) for x in zip(*out))
 
 
@@ -412,7 +413,7 @@ def box_box(cm, world, ia, ib, margin):
         wb = pb - db + (2 * tt)[:, None] * db
         out.append((sel, 0.5 * (wa + wb), nn, depth_sat[sel]))
     if not out:
-        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+        return no_pair_contacts()
     pair, point, normal, depth = (np.concatenate(x) for x in zip(*out))
     order = np.argsort(pair, kind="stable")
     return pair[order], point[order], normal[order], depth[order]
