@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from vrsim_cli.collision import broadphase, fcl_adapter
+from vrsim_cli.collision import broadphase
 from vrsim_cli.collision.contacts import Contacts
+from vrsim_cli.collision.narrowphase import box_box_distance
 from vrsim_cli.collision.shapes import BOX, PLANE, SPHERE, aabbs, place, subset
 from vrsim_cli.spatial import quat_conjugate, quat_multiply
 
@@ -82,8 +83,9 @@ def _closed_form(cm, ta, tb, pa, pb, va, vb, ia, ib, dt):
 
 
 def pair_distance(cm, world, ia, ib):
-    """Signed distance (P,) of geom pairs: exact closed forms; box-box and pairs without a
-    closed form through fcl's GJK (the separating-axis gap is only a lower bound)."""
+    """Distance (P,) of geom pairs (<= 0 when they touch): closed forms; for box pairs the
+    exact corner/edge distance (the separating-axis gap is only a lower bound); fcl's
+    GJK for pairs without a closed form."""
     from vrsim_cli.collision.detect import narrow_phase
 
     d = np.full(len(ia), np.inf)
@@ -92,8 +94,8 @@ def pair_distance(cm, world, ia, ib):
     if len(rest):
         pair, _, _, depth = narrow_phase(cm, world, ia[rest], ib[rest], np.inf)
         np.minimum.at(d, rest[pair], -depth)
-    for p in np.flatnonzero(boxes):
-        d[p] = fcl_adapter.pair_distance(cm, world, int(ia[p]), int(ib[p]))
+    if boxes.any():
+        d[boxes] = box_box_distance(world, ia[boxes], ib[boxes])
     return d
 
 
@@ -135,8 +137,9 @@ def time_of_impact(cm, body_pos, body_quat, body_vel, body_angvel, ia, ib, dt: f
         with np.errstate(divide="ignore"):
             step = np.where(mu[live] > 0.0, d / mu[live], np.inf)
         t_next = t[live] + step
-        go = ~hit & (t_next <= dt)
-        t[live[go]] = t_next[go]
+        # A touch exactly at the step's end must not be lost to round-off in d / mu.
+        go = ~hit & (t_next <= dt * (1.0 + 1e-12))
+        t[live[go]] = np.minimum(t_next[go], dt)
         live = live[go]
         if not len(live):
             break

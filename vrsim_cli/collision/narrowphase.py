@@ -419,6 +419,41 @@ def box_box(cm, world, ia, ib, margin):
     return pair[order], point[order], normal[order], depth[order]
 
 
+_EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)
+                   if np.count_nonzero(_CORNERS[i] != _CORNERS[j]) == 1])  # the 12 edges
+
+
+def box_box_distance(world, ia, ib):
+    """Exact distance (P,) m between separated boxes; <= 0 when they touch or overlap.
+
+    The closest points of two convex polyhedra can be taken on a vertex and the other
+    solid, or on two edges (faces and parallel edges reach their minimum there too), so
+    the distance is the least of: the 16 corners' distances to the other box and the
+    144 edge-edge distances. Used by continuous detection; fcl's GJK is not used here
+    because it errs in flush configurations (two aligned boxes: 1.118 m for 1.1 m)."""
+    ca, cb = world.pos[ia], world.pos[ib]
+    A, B = world.rot[ia], world.rot[ib]
+    ha, hb = world.half[ia], world.half[ib]
+    corners_a = ca[:, None] + np.einsum("pij,pkj->pki", A, _CORNERS[None] * ha[:, None])
+    corners_b = cb[:, None] + np.einsum("pij,pkj->pki", B, _CORNERS[None] * hb[:, None])
+
+    def to_box(points, c, rot, half):
+        local = np.einsum("pji,pkj->pki", rot, points - c[:, None])
+        return _box_sdf(local, half[:, None]).min(axis=1)
+
+    d = np.minimum(to_box(corners_a, cb, B, hb), to_box(corners_b, ca, A, ha))
+    p1 = np.repeat(corners_a[:, _EDGES[:, 0]], 12, axis=1)  # (P, 144, 3)
+    q1 = np.repeat(corners_a[:, _EDGES[:, 1]], 12, axis=1)
+    p2 = np.tile(corners_b[:, _EDGES[:, 0]], (1, 12, 1))
+    q2 = np.tile(corners_b[:, _EDGES[:, 1]], (1, 12, 1))
+    shape = p1.shape
+    s, t = closest_segment_points(*(x.reshape(-1, 3) for x in (p1, q1, p2, q2)))
+    gap = (p1.reshape(-1, 3) + s[:, None] * (q1 - p1).reshape(-1, 3)) - \
+        (p2.reshape(-1, 3) + t[:, None] * (q2 - p2).reshape(-1, 3))
+    d = np.minimum(d, np.linalg.norm(gap, axis=1).reshape(shape[:2]).min(axis=1))
+    return d
+
+
 # Keyed by (type of A, type of B). A pair found as (B, A) is computed swapped and its
 # normals are flipped (`detect.narrow_phase`).
 DISPATCH = {
