@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from vrsim_cli.collision import broadphase
 from vrsim_cli.collision.contacts import Contacts
 from vrsim_cli.collision.narrowphase import box_box_distance
 from vrsim_cli.collision.shapes import BOX, PLANE, SPHERE, aabbs, place, subset
@@ -150,8 +149,7 @@ def time_of_impact(cm, body_pos, body_quat, body_vel, body_angvel, ia, ib, dt: f
 def swept_contacts(model, before, after, exclude=frozenset()) -> Contacts:
     """Contacts at the time of impact of pairs that touch during the step from `before` to
     `after` but not at its end (pairs of bodies in `exclude` are skipped)."""
-    from vrsim_cli.collision.detect import active_geoms, filter_pairs, narrow_phase, \
-        to_contacts
+    from vrsim_cli.collision.detect import broad_phase, narrow_phase, to_contacts
 
     cm = model.collision
     dt = after.t - before.t
@@ -169,8 +167,7 @@ def swept_contacts(model, before, after, exclude=frozenset()) -> Contacts:
         r = cm.geom_rbound[spins, None]
         lo[spins] = np.minimum(before.body_pos[b], after.body_pos[b]) - r
         hi[spins] = np.maximum(before.body_pos[b], after.body_pos[b]) + r
-    ia, ib = broadphase.candidate_pairs(lo, hi, cm.broad_phase)
-    ia, ib = filter_pairs(model, ia, ib, active_geoms(model, after.step))
+    ia, ib = broad_phase(model, lo, hi, after.step)
     body_pairs = list(zip(cm.geom_body[ia].tolist(), cm.geom_body[ib].tolist()))
     fresh = np.array([(min(p), max(p)) not in exclude for p in body_pairs], bool)
     ia, ib = ia[fresh], ib[fresh]

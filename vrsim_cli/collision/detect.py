@@ -22,18 +22,17 @@ from vrsim_cli.model import BODY_STATIC
 
 
 
-def active_geoms(model, step: int) -> np.ndarray:
-    """(n_geom,) bool: geoms whose body is in the scene at this step."""
+def broad_phase(model, lo, hi, step: int):
+    """Candidate geom pairs (ia, ib) among the world AABBs lo, hi (n_geom, 3): only geoms
+    whose body is in the scene at `step` (particles waiting at a nozzle all sit at one
+    point and would pair with each other), no pairs of one body or of two static bodies."""
     cm = model.collision
-    return model.body_emit_step[cm.geom_body] <= step
-
-
-def filter_pairs(model, ia, ib, active):
-    """Drop pairs of one body, pairs of two static bodies, and inactive geoms."""
-    cm = model.collision
+    idx = np.flatnonzero(model.body_emit_step[cm.geom_body] <= step)
+    ia, ib = broadphase.candidate_pairs(lo[idx], hi[idx], cm.broad_phase)
+    ia, ib = idx[ia], idx[ib]
     ba, bb = cm.geom_body[ia], cm.geom_body[ib]
     moves = np.asarray(model.body_type) != BODY_STATIC
-    keep = (ba != bb) & (moves[ba] | moves[bb]) & active[ia] & active[ib]
+    keep = (ba != bb) & (moves[ba] | moves[bb])
     return ia[keep], ib[keep]
 
 
@@ -75,14 +74,6 @@ def to_contacts(cm, ia, ib, pair, point, normal, depth, toi=None) -> Contacts:
     return Contacts(a[order], b[order], point[order], normal[order], depth[order], toi[order])
 
 
-def candidates(model, world, step: int):
-    """Broad phase on the geoms' world AABBs: filtered candidate geom pairs (ia, ib)."""
-    cm = model.collision
-    lo, hi = aabbs(cm, world)
-    ia, ib = broadphase.candidate_pairs(lo, hi, cm.broad_phase)
-    return filter_pairs(model, ia, ib, active_geoms(model, step))
-
-
 def detect(model, state, margin: float | None = None) -> Contacts:
     """All contacts of `state` with depth >= -margin (default: collision.tolerance)."""
     cm = model.collision
@@ -90,7 +81,7 @@ def detect(model, state, margin: float | None = None) -> Contacts:
         return Contacts.empty()
     margin = cm.tolerance if margin is None else margin
     world = place(cm, state.body_pos, state.body_quat)
-    ia, ib = candidates(model, world, state.step)
+    ia, ib = broad_phase(model, *aabbs(cm, world), state.step)
     return to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, margin))
 
 
