@@ -131,6 +131,15 @@ def test_crossing_capsules():
     np.testing.assert_allclose(p, [[0.075, 0.2, 0.0]], atol=TOL)
 
 
+def test_parallel_capsules_side_by_side_touch_along_the_overlap():
+    # Both along y, 0.15 apart in x, the second shifted up by 0.3: the axes overlap for
+    # y in [-0.2, 0.5]; two contacts at the ends of the overlap, depth 0.2 - 0.15.
+    p, n, d = contacts(capsule(0.1, 1.0), capsule(0.1, 1.0), [0, 0, 0], [0.15, 0.3, 0])
+    assert d == pytest.approx([0.05, 0.05], abs=TOL)
+    np.testing.assert_allclose(n, [[1, 0, 0]] * 2, atol=TOL)
+    np.testing.assert_allclose(p, [[0.075, -0.2, 0], [0.075, 0.5, 0]], atol=TOL)
+
+
 def test_capsule_on_the_ground_flat_and_tilted():
     qz = quat_from_axis_angle([0, 0, 1], math.pi / 2)  # axis along x
     p, _, d = contacts(plane([0, 1, 0]), capsule(0.1, 1.0), [0, 0, 0], [0, 0.08, 0], I, qz)

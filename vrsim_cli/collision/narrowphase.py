@@ -198,13 +198,46 @@ def closest_segment_points(p1, q1, p2, q2):
     return s, t
 
 
+PARALLEL_SIN = 1e-3  # capsule axes closer than this (sine of the angle) count as parallel
+
+
+def _closest_on_segment(p, a, b):
+    ab = b - a
+    t = np.clip(_dot(p - a, ab) / np.maximum(_dot(ab, ab), _EPS), 0.0, 1.0)
+    return a + t[:, None] * ab
+
+
 def capsule_capsule(cm, world, ia, ib, margin):
+    """Closest points of the two axes, then spheres. Parallel axes that overlap along
+    their length (capsules lying side by side) get two contacts, at the two ends of the
+    overlap, so that a response can stop them rolling about the contact line."""
     a1, b1 = _segment(world, ia)
     a2, b2 = _segment(world, ib)
+    ra, rb = cm.geom_radius[ia], cm.geom_radius[ib]
     s, t = closest_segment_points(a1, b1, a2, b2)
-    point, n, depth = _spheres(a1 + s[:, None] * (b1 - a1), cm.geom_radius[ia],
-                               a2 + t[:, None] * (b2 - a2), cm.geom_radius[ib])
-    return _keep(np.arange(len(ia)), point, n, depth, margin)
+    point, n, depth = _spheres(a1 + s[:, None] * (b1 - a1), ra, a2 + t[:, None] * (b2 - a2),
+                               rb)
+    u, length = _unit(b1 - a1)
+    parallel = np.linalg.norm(np.cross(u, _unit(b2 - a2)[0]), axis=1) < PARALLEL_SIN
+    s_a, s_b = _dot(a2 - a1, u), _dot(b2 - a1, u)  # axis 2's ends along axis 1
+    lo = np.maximum(np.minimum(s_a, s_b), 0.0)
+    hi = np.minimum(np.maximum(s_a, s_b), length)
+    two = parallel & (hi - lo > 1e-9 * (1.0 + length))
+    pairs, points, normals, depths = [np.flatnonzero(~two)], [point[~two]], [n[~two]], \
+        [depth[~two]]
+    if two.any():
+        for end in (lo, hi):
+            p1 = a1[two] + u[two] * end[two, None]
+            q, m, d = _spheres(p1, ra[two], _closest_on_segment(p1, a2[two], b2[two]),
+                               rb[two])
+            pairs.append(np.flatnonzero(two))
+            points.append(q)
+            normals.append(m)
+            depths.append(d)
+    pair = np.concatenate(pairs)
+    order = np.argsort(pair, kind="stable")
+    return _keep(pair[order], np.concatenate(points)[order], np.concatenate(normals)[order],
+                 np.concatenate(depths)[order], margin)
 
 
 def _box_sdf(local, half):
