@@ -74,6 +74,23 @@ def to_contacts(cm, ia, ib, pair, point, normal, depth, toi=None) -> Contacts:
     return Contacts(a[order], b[order], point[order], normal[order], depth[order], toi[order])
 
 
+def planar(contacts: Contacts) -> Contacts:
+    """2D scenes: contacts in the z = 0 plane. Boxes are given a z depth for the 3D tests,
+    so a corner touches at z = +-depth: drop z, then the duplicates this makes."""
+    if not len(contacts):
+        return contacts
+    point = contacts.point * [1.0, 1.0, 0.0]
+    normal = contacts.normal * [1.0, 1.0, 0.0]
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.where(length > 0.0, normal / np.where(length > 0.0, length, 1.0),
+                      contacts.normal)
+    key = np.column_stack([contacts.body_a, contacts.body_b, np.round(point[:, :2] * 1e9)])
+    _, first = np.unique(key, axis=0, return_index=True)
+    keep = np.sort(first)
+    return Contacts(contacts.body_a[keep], contacts.body_b[keep], point[keep], normal[keep],
+                    contacts.depth[keep], contacts.toi[keep])
+
+
 def detect(model, state, margin: float | None = None) -> Contacts:
     """All contacts of `state` with depth >= -margin (default: collision.tolerance)."""
     cm = model.collision
@@ -82,7 +99,8 @@ def detect(model, state, margin: float | None = None) -> Contacts:
     margin = cm.tolerance if margin is None else margin
     world = place(cm, state.body_pos, state.body_quat)
     ia, ib = broad_phase(model, *aabbs(cm, world), state.step)
-    return to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, margin))
+    contacts = to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, margin))
+    return planar(contacts) if model.dimension == 2 else contacts
 
 
 def step(model, before, after) -> Contacts:
@@ -97,4 +115,7 @@ def step(model, before, after) -> Contacts:
 
     exclude = contacts.pairs() | (before.contacts.pairs() if before.contacts is not None
                                   else set())
-    return Contacts.concatenate([contacts, swept_contacts(model, before, after, exclude)])
+    swept = swept_contacts(model, before, after, exclude)
+    if model.dimension == 2:
+        swept = planar(swept)
+    return Contacts.concatenate([contacts, swept])
