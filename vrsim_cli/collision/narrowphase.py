@@ -111,6 +111,36 @@ def capsule_sphere(cm, world, ia, ib, margin):
     return _keep(np.arange(len(ia)), point, n, depth, margin)
 
 
+def cylinder_sphere(cm, world, ia, ib, margin):
+    """Cylinder (A, axis along its local y) and sphere (B): in the cylinder's frame the
+    problem is 2D in (distance from the axis, height), a rectangle of half sizes (r, h):
+    outside, towards the closest point; inside, out of the nearest side or cap."""
+    c, rot = world.pos[ia], world.rot[ia]
+    r, h = cm.geom_radius[ia], world.half[ia][:, 1]
+    local = np.einsum("pji,pj->pi", rot, world.pos[ib] - c)
+    radial_vec = local * [1.0, 0.0, 1.0]
+    radial_dir, radial = _unit(radial_vec, np.array([1.0, 0.0, 0.0]))
+    y = local[:, 1]
+    closest = radial_dir * np.minimum(radial, r)[:, None]
+    closest[:, 1] = np.clip(y, -h, h)
+    diff, dist = _unit(local - closest)
+    inside = dist <= _EPS
+    side_gap, cap_gap = r - radial, h - np.abs(y)
+    to_side = side_gap <= cap_gap
+    sign = np.where(y >= 0.0, 1.0, -1.0)
+    n_in = np.where(to_side[:, None], radial_dir, sign[:, None] * _UP)
+    surf_in = np.where(to_side[:, None], radial_dir * r[:, None] + y[:, None] * _UP,
+                       radial_vec + (sign * h)[:, None] * _UP)
+    n_local = np.where(inside[:, None], n_in, diff)
+    surface = np.where(inside[:, None], surf_in, closest)
+    rs = cm.geom_radius[ib]
+    depth = rs - np.where(inside, -np.minimum(side_gap, cap_gap), dist)
+    normal = np.einsum("pij,pj->pi", rot, n_local)
+    world_surface = c + np.einsum("pij,pj->pi", rot, surface)
+    point = 0.5 * (world_surface + world.pos[ib] - normal * rs[:, None])
+    return _keep(np.arange(len(ia)), point, normal, depth, margin)
+
+
 def plane_box(cm, world, ia, ib, margin):
     """Half-space against the 8 box corners; up to the 4 deepest corners within margin."""
     n = cm.geom_plane_normal[ia]
@@ -500,6 +530,7 @@ DISPATCH = {
     (BOX, CAPSULE): box_capsule,
     (BOX, BOX): box_box,
     (PLANE, CYLINDER): plane_cylinder,
+    (CYLINDER, SPHERE): cylinder_sphere,
     (PLANE, CONVEX): plane_vertices,
     (PLANE, MESH): plane_vertices,
 }
