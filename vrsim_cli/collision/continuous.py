@@ -146,9 +146,10 @@ def time_of_impact(cm, body_pos, body_quat, body_vel, body_angvel, ia, ib, dt: f
     return toi
 
 
-def swept_contacts(model, before, after, exclude=frozenset()) -> Contacts:
+def swept_contacts(model, before, after, exclude=frozenset(), world_after=None) -> Contacts:
     """Contacts at the time of impact of pairs that touch during the step from `before` to
-    `after` but not at its end (pairs of bodies in `exclude` are skipped)."""
+    `after` but not at its end (pairs of bodies in `exclude` are skipped). `world_after`:
+    the geoms already placed at `after`, if the caller has them."""
     from vrsim_cli.collision.detect import broad_phase, narrow_phase, to_contacts
 
     cm = model.collision
@@ -156,8 +157,8 @@ def swept_contacts(model, before, after, exclude=frozenset()) -> Contacts:
     if cm is None or cm.n_geom == 0 or dt <= 0.0:
         return Contacts.empty()
     vel, angvel = motion(before, after, dt)
-    w0, w1 = place(cm, before.body_pos, before.body_quat), place(cm, after.body_pos,
-                                                                  after.body_quat)
+    w0 = place(cm, before.body_pos, before.body_quat)
+    w1 = place(cm, after.body_pos, after.body_quat) if world_after is None else world_after
     (lo0, hi0), (lo1, hi1) = aabbs(cm, w0), aabbs(cm, w1)
     lo, hi = np.minimum(lo0, lo1), np.maximum(hi0, hi1)
     spins = np.linalg.norm(angvel[cm.geom_body], axis=1) > 0.0

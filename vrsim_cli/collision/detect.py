@@ -91,13 +91,14 @@ def planar(contacts: Contacts) -> Contacts:
                     contacts.depth[keep], contacts.toi[keep])
 
 
-def detect(model, state, margin: float | None = None) -> Contacts:
-    """All contacts of `state` with depth >= -margin (default: collision.tolerance)."""
+def detect(model, state, margin: float | None = None, world=None) -> Contacts:
+    """All contacts of `state` with depth >= -margin (default: collision.tolerance).
+    `world`: the geoms already placed at `state` (shapes.place), if the caller has them."""
     cm = model.collision
     if cm is None or cm.n_geom == 0:
         return Contacts.empty()
     margin = cm.tolerance if margin is None else margin
-    world = place(cm, state.body_pos, state.body_quat)
+    world = place(cm, state.body_pos, state.body_quat) if world is None else world
     ia, ib = broad_phase(model, *aabbs(cm, world), state.step)
     contacts = to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, margin))
     return planar(contacts) if model.dimension == 2 else contacts
@@ -108,14 +109,18 @@ def step(model, before, after) -> Contacts:
     `after` and, when continuous detection is on, the first touch of every pair that
     met during the step but touches neither at its end nor at its start (`before.contacts`,
     already reported): a body that would otherwise tunnel. Discrete contacts come first."""
-    contacts = detect(model, after)
-    if not model.collision.continuous:
+    cm = model.collision
+    if cm.n_geom == 0:
+        return Contacts.empty()
+    world = place(cm, after.body_pos, after.body_quat)
+    contacts = detect(model, after, world=world)
+    if not cm.continuous:
         return contacts
     from vrsim_cli.collision.continuous import swept_contacts
 
     exclude = contacts.pairs() | (before.contacts.pairs() if before.contacts is not None
                                   else set())
-    swept = swept_contacts(model, before, after, exclude)
+    swept = swept_contacts(model, before, after, exclude, world)
     if model.dimension == 2:
         swept = planar(swept)
     return Contacts.concatenate([contacts, swept])
