@@ -4,6 +4,7 @@ tunnelling case of slide 5.4 through a real run, contacts in MCAP, and the CLI."
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -218,3 +219,25 @@ def test_step_reports_discrete_then_swept_contacts():
     s1 = s0.replace(step=1, t=0.01, body_pos=s0.body_pos + [[0, 0, 0], [5.0, 0, 0]])
     c = step(model, s0, s1)
     assert isinstance(c, Contacts) and len(c) == 1 and c.toi[0] == c.toi[0]
+
+
+def test_2d_contacts_lie_in_the_plane():
+    # A 1 x 0.5 box turned 20 deg, centre 0.2 m up: its lowest corner (-0.5, -0.25)
+    # turned is at y = 0.2 - 0.5 sin 20 - 0.25 cos 20 below the ground; one contact.
+    model = model_of("""
+vrsim: 1
+dimension: 2
+duration: 0.01
+collision: {}
+bodies:
+  - {name: ground, type: static, shape: {type: plane, normal: [0, 1], offset: 0}}
+  - {name: a, mass: 1, shape: {type: box, size: [1, 0.5]}, position: [0, 0.2], angle_deg: 20}
+""")
+    c = detect(model, make_state(model))
+    c20, s20 = math.cos(math.radians(20)), math.sin(math.radians(20))
+    assert len(c) == 1
+    assert c.depth[0] == pytest.approx(-(0.2 - 0.5 * s20 - 0.25 * c20), abs=1e-12)
+    corner = [-0.5 * c20 + 0.25 * s20, 0.2 - 0.5 * s20 - 0.25 * c20]
+    np.testing.assert_allclose(c.point[0], [corner[0], corner[1] + c.depth[0] / 2, 0.0],
+                               atol=1e-12)
+    np.testing.assert_allclose(c.normal[0], [0.0, 1.0, 0.0])

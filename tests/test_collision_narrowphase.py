@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from vrsim_cli.collision import fcl_adapter
 from vrsim_cli.collision.detect import narrow_phase
+from vrsim_cli.collision.narrowphase import box_box_distance
 from vrsim_cli.collision.shapes import analytic_geom, place, table
 from vrsim_cli.spatial import quat_from_axis_angle, quat_from_euler_deg, quat_normalize
 
@@ -95,6 +96,21 @@ def test_box_sphere_face_edge_and_inside(centre, depth, normal, surface):
     np.testing.assert_allclose(p, [0.5 * (np.asarray(surface) + deepest)], atol=TOL)
 
 
+@pytest.mark.parametrize("centre, depth, normal, surface", [
+    ([0.0, 0.9, 0.3], 0.1, [0, 1, 0], [0.0, 0.5, 0.3]),                   # over the cap
+    ([0.0, 0.2, 0.7], 0.3, [0, 0, 1], [0.0, 0.2, 0.5]),                   # beside the side
+    ([0.8, 0.9, 0.0], 0.5 - math.hypot(0.3, 0.4), [0.6, 0.8, 0], [0.5, 0.5, 0.0]),  # rim
+    ([0.0, 0.45, 0.1], 0.5 + 0.05, [0, 1, 0], [0.0, 0.5, 0.1]),           # centre inside
+])
+def test_cylinder_sphere_cap_side_rim_and_inside(centre, depth, normal, surface):
+    cyl = {"type": "cylinder", "radius": 0.5, "length": 1.0}
+    p, n, d = contacts(cyl, sphere(0.5), [0, 0, 0], centre)
+    assert d == pytest.approx([depth], abs=TOL)
+    np.testing.assert_allclose(n, [normal], atol=TOL)
+    deepest = np.asarray(centre) - 0.5 * np.asarray(normal, float)
+    np.testing.assert_allclose(p, [0.5 * (np.asarray(surface) + deepest)], atol=TOL)
+
+
 def test_box_on_an_edge_on_the_ground_gives_the_two_corners_of_that_edge():
     q = quat_from_axis_angle([0, 0, 1], math.pi / 4)
     p, n, d = contacts(plane([0, 1, 0]), box(1, 1, 1), [0, 0, 0], [0, R2 / 2 - 0.01, 0],
@@ -128,6 +144,15 @@ def test_crossing_capsules():
     assert d == pytest.approx([0.05], abs=TOL)
     np.testing.assert_allclose(n, [[1, 0, 0]], atol=TOL)
     np.testing.assert_allclose(p, [[0.075, 0.2, 0.0]], atol=TOL)
+
+
+def test_parallel_capsules_side_by_side_touch_along_the_overlap():
+    # Both along y, 0.15 apart in x, the second shifted up by 0.3: the axes overlap for
+    # y in [-0.2, 0.5]; two contacts at the ends of the overlap, depth 0.2 - 0.15.
+    p, n, d = contacts(capsule(0.1, 1.0), capsule(0.1, 1.0), [0, 0, 0], [0.15, 0.3, 0])
+    assert d == pytest.approx([0.05, 0.05], abs=TOL)
+    np.testing.assert_allclose(n, [[1, 0, 0]] * 2, atol=TOL)
+    np.testing.assert_allclose(p, [[0.075, -0.2, 0], [0.075, 0.5, 0]], atol=TOL)
 
 
 def test_capsule_on_the_ground_flat_and_tilted():
@@ -207,12 +232,14 @@ SHAPES = {
     "sphere": st.builds(sphere, size),
     "box": st.builds(lambda x, y, z: box(2 * x, 2 * y, 2 * z), size, size, size),
     "capsule": st.builds(lambda r, h: capsule(0.5 * r, 2 * h), size, size),
+    "cylinder": st.builds(lambda r, h: {"type": "cylinder", "radius": 0.5 * r,
+                                        "length": 2 * h}, size, size),
     "plane": st.builds(lambda n, o: plane(n, o), vec3.filter(
         lambda v: sum(c * c for c in v) > 0.01), st.floats(-0.5, 0.5)),
 }
 PAIRS = [("sphere", "sphere"), ("plane", "sphere"), ("box", "sphere"), ("capsule", "sphere"),
          ("plane", "box"), ("plane", "capsule"), ("capsule", "capsule"), ("box", "capsule"),
-         ("box", "box"), ("sphere", "box")]
+         ("box", "box"), ("sphere", "box"), ("cylinder", "sphere"), ("sphere", "cylinder")]
 # fcl's GJK on a curved shape against a box (libccd) stops ~1e-4 m short of the true
 # distance (measured: 8.7e-5 m on 1 m shapes); its other answers here are closed forms.
 GJK_TOL = 2e-4
@@ -247,7 +274,7 @@ def _brute_capsule_depth(cm, world, kind_a):
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 @given(data=st.data())
 def test_closed_forms_agree_with_fcl(kind_a, kind_b, data):
-    """10 pair types x 300 poses: hit/miss, depth, and the gap of separated pairs."""
+    """12 pair types x 300 poses: hit/miss, depth, and the gap of separated pairs."""
     shape_a, shape_b = data.draw(SHAPES[kind_a]), data.draw(SHAPES[kind_b])
     pa, pb = data.draw(vec3), data.draw(vec3)
     qa, qb = quat_normalize(data.draw(quat)), quat_normalize(data.draw(quat))
@@ -271,8 +298,9 @@ def test_closed_forms_agree_with_fcl(kind_a, kind_b, data):
     theirs = f_depth.max()
     if pair == ("box", "box"):
         # Both prefer a face axis unless an edge axis is 5 % shallower (ODE's fudge factor
-        # 1.05, ours too), so each may report an axis up to 5 % deeper than the other's.
-        assert ours == pytest.approx(theirs, rel=0.051)
+        # 1.05; ours: edge if e < 0.95 f), so a kept face may be up to 1/0.95 - 1 = 5.3 %
+        # deeper than the edge the other side reports.
+        assert ours == pytest.approx(theirs, rel=0.053)
     elif kind_b == "capsule" and kind_a in ("box", "capsule"):
         # fcl's EPA for these is off by up to 5e-4 m even at 1 cm depth (measured), so
         # the truth is brute force: r minus the axis' smallest signed distance to the
@@ -289,3 +317,34 @@ def test_closed_forms_agree_with_fcl(kind_a, kind_b, data):
         # compare them for shallow contacts, below a quarter of the smallest size (0.1 m).
         if ours < 0.025:
             assert normal[np.argmax(depth)] @ f_normal[np.argmax(f_depth)] > 1.0 - 1e-9
+
+
+def test_box_distance_of_flush_boxes_where_fcl_errs():
+    # Aligned 0.4 x 0.2 x 0.3 boxes, the second turned 180 deg about z (the same box),
+    # 1.5 m apart along x: 1.1 m between the faces. fcl's GJK says 1.118 m here.
+    cm, world = setup(box(0.4, 0.2, 0.3), box(0.4, 0.2, 0.3), [0, 0, 0], [-1.5, 0, 0],
+                      I, [0.0, 0.0, 0.0, 1.0])
+    assert box_box_distance(world, np.array([0]), np.array([1])) == pytest.approx([1.1],
+                                                                                 abs=1e-12)
+    # Corner to corner along the diagonal: |(0.5, 0.6, 0.7)| between the nearest corners.
+    cm, world = setup(box(0.4, 0.2, 0.3), box(0.4, 0.2, 0.3), [0, 0, 0], [0.9, 0.8, 1.0])
+    assert box_box_distance(world, np.array([0]), np.array([1])) == pytest.approx(
+        [math.sqrt(0.25 + 0.36 + 0.49)], abs=1e-12)
+
+
+@settings(max_examples=200, derandomize=True, deadline=None)
+@given(data=st.data())
+def test_box_distance_agrees_with_fcl_on_turned_boxes(data):
+    """fcl's GJK on polytopes is exact on generic poses but errs when a face or an edge of
+    one box is parallel to a face of the other (see above), so those are left out: every
+    entry of the relative rotation must be clear of 0 and of +-1 by 1e-3."""
+    shape_a, shape_b = data.draw(SHAPES["box"]), data.draw(SHAPES["box"])
+    pa, pb = data.draw(vec3), np.array(data.draw(vec3)) * 3.0
+    qa, qb = quat_normalize(data.draw(quat)), quat_normalize(data.draw(quat))
+    cm, world = setup(shape_a, shape_b, pa, pb, qa, qb)
+    relative = np.abs(world.rot[0].T @ world.rot[1])
+    assume(np.all(relative > 1e-3) and np.all(relative < 1.0 - 1e-3))
+    gap = fcl_adapter.pair_distance(cm, world, 0, 1)
+    assume(gap > 1e-6)
+    assert box_box_distance(world, np.array([0]), np.array([1]))[0] == pytest.approx(
+        gap, abs=1e-9)

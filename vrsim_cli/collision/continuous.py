@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from vrsim_cli.collision import broadphase, fcl_adapter
 from vrsim_cli.collision.contacts import Contacts
+from vrsim_cli.collision.narrowphase import box_box_distance
 from vrsim_cli.collision.shapes import BOX, PLANE, SPHERE, aabbs, place, subset
 from vrsim_cli.spatial import quat_conjugate, quat_multiply
 
@@ -82,8 +82,9 @@ def _closed_form(cm, ta, tb, pa, pb, va, vb, ia, ib, dt):
 
 
 def pair_distance(cm, world, ia, ib):
-    """Signed distance (P,) of geom pairs: exact closed forms; box-box and pairs without a
-    closed form through fcl's GJK (the separating-axis gap is only a lower bound)."""
+    """Distance (P,) of geom pairs (<= 0 when they touch): closed forms; for box pairs the
+    exact corner/edge distance (the separating-axis gap is only a lower bound); fcl's
+    GJK for pairs without a closed form."""
     from vrsim_cli.collision.detect import narrow_phase
 
     d = np.full(len(ia), np.inf)
@@ -92,8 +93,8 @@ def pair_distance(cm, world, ia, ib):
     if len(rest):
         pair, _, _, depth = narrow_phase(cm, world, ia[rest], ib[rest], np.inf)
         np.minimum.at(d, rest[pair], -depth)
-    for p in np.flatnonzero(boxes):
-        d[p] = fcl_adapter.pair_distance(cm, world, int(ia[p]), int(ib[p]))
+    if boxes.any():
+        d[boxes] = box_box_distance(world, ia[boxes], ib[boxes])
     return d
 
 
@@ -135,8 +136,9 @@ def time_of_impact(cm, body_pos, body_quat, body_vel, body_angvel, ia, ib, dt: f
         with np.errstate(divide="ignore"):
             step = np.where(mu[live] > 0.0, d / mu[live], np.inf)
         t_next = t[live] + step
-        go = ~hit & (t_next <= dt)
-        t[live[go]] = t_next[go]
+        # A touch exactly at the step's end must not be lost to round-off in d / mu.
+        go = ~hit & (t_next <= dt * (1.0 + 1e-12))
+        t[live[go]] = np.minimum(t_next[go], dt)
         live = live[go]
         if not len(live):
             break
@@ -144,19 +146,19 @@ def time_of_impact(cm, body_pos, body_quat, body_vel, body_angvel, ia, ib, dt: f
     return toi
 
 
-def swept_contacts(model, before, after, exclude=frozenset()) -> Contacts:
+def swept_contacts(model, before, after, exclude=frozenset(), world_after=None) -> Contacts:
     """Contacts at the time of impact of pairs that touch during the step from `before` to
-    `after` but not at its end (pairs of bodies in `exclude` are skipped)."""
-    from vrsim_cli.collision.detect import active_geoms, filter_pairs, narrow_phase, \
-        to_contacts
+    `after` but not at its end (pairs of bodies in `exclude` are skipped). `world_after`:
+    the geoms already placed at `after`, if the caller has them."""
+    from vrsim_cli.collision.detect import broad_phase, narrow_phase, to_contacts
 
     cm = model.collision
     dt = after.t - before.t
     if cm is None or cm.n_geom == 0 or dt <= 0.0:
         return Contacts.empty()
     vel, angvel = motion(before, after, dt)
-    w0, w1 = place(cm, before.body_pos, before.body_quat), place(cm, after.body_pos,
-                                                                  after.body_quat)
+    w0 = place(cm, before.body_pos, before.body_quat)
+    w1 = place(cm, after.body_pos, after.body_quat) if world_after is None else world_after
     (lo0, hi0), (lo1, hi1) = aabbs(cm, w0), aabbs(cm, w1)
     lo, hi = np.minimum(lo0, lo1), np.maximum(hi0, hi1)
     spins = np.linalg.norm(angvel[cm.geom_body], axis=1) > 0.0
@@ -166,8 +168,7 @@ def swept_contacts(model, before, after, exclude=frozenset()) -> Contacts:
         r = cm.geom_rbound[spins, None]
         lo[spins] = np.minimum(before.body_pos[b], after.body_pos[b]) - r
         hi[spins] = np.maximum(before.body_pos[b], after.body_pos[b]) + r
-    ia, ib = broadphase.candidate_pairs(lo, hi, cm.broad_phase)
-    ia, ib = filter_pairs(model, ia, ib, active_geoms(model, after.step))
+    ia, ib = broad_phase(model, lo, hi, after.step)
     body_pairs = list(zip(cm.geom_body[ia].tolist(), cm.geom_body[ib].tolist()))
     fresh = np.array([(min(p), max(p)) not in exclude for p in body_pairs], bool)
     ia, ib = ia[fresh], ib[fresh]

@@ -22,18 +22,17 @@ from vrsim_cli.model import BODY_STATIC
 
 
 
-def active_geoms(model, step: int) -> np.ndarray:
-    """(n_geom,) bool: geoms whose body is in the scene at this step."""
+def broad_phase(model, lo, hi, step: int):
+    """Candidate geom pairs (ia, ib) among the world AABBs lo, hi (n_geom, 3): only geoms
+    whose body is in the scene at `step` (particles waiting at a nozzle all sit at one
+    point and would pair with each other), no pairs of one body or of two static bodies."""
     cm = model.collision
-    return model.body_emit_step[cm.geom_body] <= step
-
-
-def filter_pairs(model, ia, ib, active):
-    """Drop pairs of one body, pairs of two static bodies, and inactive geoms."""
-    cm = model.collision
+    idx = np.flatnonzero(model.body_emit_step[cm.geom_body] <= step)
+    ia, ib = broadphase.candidate_pairs(lo[idx], hi[idx], cm.broad_phase)
+    ia, ib = idx[ia], idx[ib]
     ba, bb = cm.geom_body[ia], cm.geom_body[ib]
     moves = np.asarray(model.body_type) != BODY_STATIC
-    keep = (ba != bb) & (moves[ba] | moves[bb]) & active[ia] & active[ib]
+    keep = (ba != bb) & (moves[ba] | moves[bb])
     return ia[keep], ib[keep]
 
 
@@ -75,23 +74,34 @@ def to_contacts(cm, ia, ib, pair, point, normal, depth, toi=None) -> Contacts:
     return Contacts(a[order], b[order], point[order], normal[order], depth[order], toi[order])
 
 
-def candidates(model, world, step: int):
-    """Broad phase on the geoms' world AABBs: filtered candidate geom pairs (ia, ib)."""
-    cm = model.collision
-    lo, hi = aabbs(cm, world)
-    ia, ib = broadphase.candidate_pairs(lo, hi, cm.broad_phase)
-    return filter_pairs(model, ia, ib, active_geoms(model, step))
+def planar(contacts: Contacts) -> Contacts:
+    """2D scenes: contacts in the z = 0 plane. Boxes are given a z depth for the 3D tests,
+    so a corner touches at z = +-depth: drop z, then the duplicates this makes."""
+    if not len(contacts):
+        return contacts
+    point = contacts.point * [1.0, 1.0, 0.0]
+    normal = contacts.normal * [1.0, 1.0, 0.0]
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.where(length > 0.0, normal / np.where(length > 0.0, length, 1.0),
+                      contacts.normal)
+    key = np.column_stack([contacts.body_a, contacts.body_b, np.round(point[:, :2] * 1e9)])
+    _, first = np.unique(key, axis=0, return_index=True)
+    keep = np.sort(first)
+    return Contacts(contacts.body_a[keep], contacts.body_b[keep], point[keep], normal[keep],
+                    contacts.depth[keep], contacts.toi[keep])
 
 
-def detect(model, state, margin: float | None = None) -> Contacts:
-    """All contacts of `state` with depth >= -margin (default: collision.tolerance)."""
+def detect(model, state, margin: float | None = None, world=None) -> Contacts:
+    """All contacts of `state` with depth >= -margin (default: collision.tolerance).
+    `world`: the geoms already placed at `state` (shapes.place), if the caller has them."""
     cm = model.collision
     if cm is None or cm.n_geom == 0:
         return Contacts.empty()
     margin = cm.tolerance if margin is None else margin
-    world = place(cm, state.body_pos, state.body_quat)
-    ia, ib = candidates(model, world, state.step)
-    return to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, margin))
+    world = place(cm, state.body_pos, state.body_quat) if world is None else world
+    ia, ib = broad_phase(model, *aabbs(cm, world), state.step)
+    contacts = to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, margin))
+    return planar(contacts) if model.dimension == 2 else contacts
 
 
 def step(model, before, after) -> Contacts:
@@ -99,11 +109,18 @@ def step(model, before, after) -> Contacts:
     `after` and, when continuous detection is on, the first touch of every pair that
     met during the step but touches neither at its end nor at its start (`before.contacts`,
     already reported): a body that would otherwise tunnel. Discrete contacts come first."""
-    contacts = detect(model, after)
-    if not model.collision.continuous:
+    cm = model.collision
+    if cm.n_geom == 0:
+        return Contacts.empty()
+    world = place(cm, after.body_pos, after.body_quat)
+    contacts = detect(model, after, world=world)
+    if not cm.continuous:
         return contacts
     from vrsim_cli.collision.continuous import swept_contacts
 
     exclude = contacts.pairs() | (before.contacts.pairs() if before.contacts is not None
                                   else set())
-    return Contacts.concatenate([contacts, swept_contacts(model, before, after, exclude)])
+    swept = swept_contacts(model, before, after, exclude, world)
+    if model.dimension == 2:
+        swept = planar(swept)
+    return Contacts.concatenate([contacts, swept])

@@ -15,9 +15,10 @@
    verlet, dopri5), a ball under gravity follows its parabola exactly and its distance to
    a plane is a quadratic in tau whose root is found to round-off: bounce times and apex
    heights h_k = h0 eps^(2k) are exact at any dt. (euler and symplectic-euler are not
-   exact in free flight, O(dt), whatever the response does.) With a swept contact whose
-   end state is separated again (tunnelling), the bracket ends at detection's time of
-   impact, which is within `collision.tolerance`.
+   exact in free flight, O(dt), whatever the response does.) When the pairs are apart
+   again at the step's end (swept through, or a ball that bounced and lands again), G is
+   sampled at 16 points of the step for the first overlap, which then closes the bracket
+   (an overlap shorter than dt/16 can be missed; it is then a resting contact).
 2. **Resting contact** at the end of the step: sequential impulses with friction and warm
    starting, shock propagation and position correction (`solver.solve_resting`,
    `solver.correct_positions`).
@@ -25,7 +26,8 @@
 Responses per pair (`response_model`): `impulse` (above), `slide` (the slide's
 v <- v - (v.n) n for each body moving into the other, then pushed out of penetration),
 `stop` (a body keeps its last non-colliding pose, at rest: at an impact it stops at the
-time of impact; in a resting contact it keeps the pose of the step's start), `none`.
+time of impact; in a resting contact it goes back to its pose after the step's last
+impact, or at the step's start), `none`.
 
 The state's `contacts` are the contacts of the end of the step (before the position
 correction) followed by the impact contacts (`toi` = time of impact after the step's
@@ -39,10 +41,9 @@ import numpy as np
 from vrsim_cli.collision import solver
 from vrsim_cli.collision.contacts import Contacts
 from vrsim_cli.collision.continuous import pair_distance, swept_contacts
-from vrsim_cli.collision import broadphase
-from vrsim_cli.collision.detect import active_geoms, filter_pairs, narrow_phase, to_contacts
+from vrsim_cli.collision.detect import broad_phase, narrow_phase, planar, to_contacts
 from vrsim_cli.collision.response_model import IMPULSE, NONE, SLIDE, STOP
-from vrsim_cli.collision.shapes import aabbs, place
+from vrsim_cli.collision.shapes import BOX, aabbs, place
 from vrsim_cli.model import BODY_DYNAMIC
 from vrsim_cli.rotation import cross, exp_so3, quat_from_matrix
 
@@ -63,15 +64,9 @@ def detect(model, state) -> Contacts:
         return Contacts.empty()
     world = place(cm, state.body_pos, state.body_quat)
     lo, hi = aabbs(cm, world)
-    ia, ib = broadphase.candidate_pairs(lo - cm.tolerance, hi + cm.tolerance,
-                                        cm.broad_phase)
-    ia, ib = filter_pairs(model, ia, ib, active_geoms(model, state.step))
+    ia, ib = broad_phase(model, lo - cm.tolerance, hi + cm.tolerance, state.step)
     c = to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, cm.tolerance))
-    if model.dimension == 2 and len(c):  # a lamina: box corners at z = +-depth are its edge
-        point = c.point.copy()
-        point[:, 2] = 0.0
-        c = Contacts(c.body_a, c.body_b, point, c.normal, c.depth, c.toi)
-    return c
+    return planar(c) if model.dimension == 2 else c
 
 
 def bodies_of(model, state) -> solver.Bodies:
@@ -189,6 +184,23 @@ def _pair_geoms(model, a, b):
     return body_geom[a], body_geom[b]
 
 
+def _signed_gaps(cm, world, ia, ib):
+    """Signed gap (P,) m of geom pairs, <= 0 exactly when they touch or overlap (only the
+    sign and continuity matter for the root): detection's pair distance, but box pairs
+    through the separating-axis test (its largest separation is 0 exactly at the touch),
+    which agrees with fcl where the corner/edge distance does not."""
+    boxes = (cm.geom_type[ia] == BOX) & (cm.geom_type[ib] == BOX)
+    d = np.full(len(ia), np.inf)
+    rest = np.flatnonzero(~boxes)
+    if len(rest):
+        d[rest] = pair_distance(cm, world, ia[rest], ib[rest])
+    sat = np.flatnonzero(boxes)
+    if len(sat):
+        pair, _, _, depth = narrow_phase(cm, world, ia[sat], ib[sat], np.inf)
+        np.minimum.at(d, sat[pair], -depth)
+    return d
+
+
 def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=None):
     """Time tau in [0, h] of the first impact of the motion from s (free flight to `end`),
     or None. Candidates: pairs penetrating at the end that did not touch at s; touching
@@ -223,8 +235,6 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
         keep = np.flatnonzero(_modes(model, swept) != NONE)
         for k in keep.tolist():
             pairs.append((int(swept.body_a[k]), int(swept.body_b[k])))
-        if len(keep) and len(pairs) == len(keep):  # only swept pairs: end at their TOI
-            hi = min(h, float(swept.toi[keep].min()))
     if not pairs:
         return None
     pairs = sorted(set(pairs))
@@ -233,7 +243,7 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
 
     def gaps(tau):
         st = s if tau == 0.0 else advance(model, s, tau)
-        return pair_distance(cm, place(cm, st.body_pos, st.body_quat), ia, ib)
+        return _signed_gaps(cm, place(cm, st.body_pos, st.body_quat), ia, ib)
 
     def gap(tau):
         return float(gaps(tau).min())
@@ -252,12 +262,21 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
         else:
             return None
     g_hi = gap(hi)
-    if g_hi > 0.0:  # swept through: detection's time of impact, within its tolerance;
-        return hi if lo == 0.0 else None  # or the leaving pair has not come back
+    if g_hi > 0.0:  # apart at hi (swept through, or a leaving pair not back): look for
+        start = lo  # the first sample of the step at which they overlap
+        for j in range(1, LEAVE_SAMPLES + 1):
+            t = start + (h - start) * j / LEAVE_SAMPLES
+            g = gap(t)
+            if g <= 0.0:
+                hi, g_hi = t, g
+                break
+            lo, g_lo = t, g
+        else:
+            return None  # they pass within the tolerance without touching
     side = 0
     for _ in range(ROOT_ITERATIONS):
-        if hi - lo <= ROOT_TOLERANCE * h or g_hi == 0.0:
-            break
+        if hi - lo <= ROOT_TOLERANCE * h:  # (not at g = 0: a distance may be 0 for
+            break                             # any overlap, so 0 is not yet the touch)
         m = hi - g_hi * (hi - lo) / (g_hi - g_lo)
         if not lo < m < hi:
             m = 0.5 * (lo + hi)

@@ -93,7 +93,11 @@ def place(cm: CollisionModel, body_pos, body_quat) -> WorldGeoms:
     brot = quat_to_matrix(bq)
     pos = np.asarray(body_pos, dtype=float)[cm.geom_body] + \
         np.einsum("gij,gj->gi", brot, cm.geom_local_pos)
-    rot = quat_to_matrix(quat_multiply(bq, cm.geom_local_quat))
+    # Most geoms sit unturned in their body: then the body's rotation is theirs.
+    turned = np.any(cm.geom_local_quat[:, 1:] != 0.0, axis=1)
+    rot = brot.copy()
+    if turned.any():
+        rot[turned] = quat_to_matrix(quat_multiply(bq[turned], cm.geom_local_quat[turned]))
     half = cm.geom_half
     if cm.geom_world_aabb.any():
         half = half.copy()
