@@ -162,6 +162,8 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
     n_steps = round(ratio) if abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio) else \
         math.ceil(ratio)
 
+    window_notes = _force_windows(scene, dt, n_steps, problems)
+
     # --- output
     out = data.get("output") or {}
     rate = float(out.get("rate", frame_rate))
@@ -261,7 +263,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         body_index={name: i for i, name in enumerate(names)},
         observer=observer,
         inputs=inputs,
-        notes=_notes(data) + rigid_notes(data),
+        notes=_notes(data) + rigid_notes(data) + window_notes,
         # Static and kinematic bodies with analytic shapes (meshes join with collision).
         observer_obstacles=tuple(i for i, (kind, shape) in enumerate(zip(kinds, shapes))
                                  if kind != BODY_DYNAMIC and shape is not None
@@ -386,3 +388,31 @@ def _notes(data: dict) -> tuple:
     return (f"material (restitution, friction) of {len(with_material)} body(ies), first "
             f"bodies[{with_material[0]}], has no effect yet: this version detects no "
             f"collisions and applies no collision response",)
+
+
+def _force_windows(scene: Scene, dt: float, n_steps: int, problems: list[Problem]) -> tuple:
+    """Forces and torques act on whole steps: those whose start time lies in [start, end)
+    (dynamics.active_forces). A window holding no step start would silently do nothing: that
+    is an error. A window that does not cover whole steps acts longer or shorter than
+    written: that is said in a note."""
+    notes = []
+    for i, body in enumerate(scene.data.get("bodies") or []):
+        for key in ("forces", "torques"):
+            for j, item in enumerate(body.get(key) or []):
+                start, end = float(item.get("start", 0.0)), float(item.get("end", math.inf))
+                if not math.isfinite(end):
+                    continue
+                first = max(0, math.ceil(start / dt - 1e-9))
+                last = min(n_steps, math.ceil(end / dt - 1e-9))  # exclusive
+                acting = max(0, last - first)
+                written = min(end, n_steps * dt) - start
+                if acting == 0 and written > 0:
+                    problems.append(scene.problem(
+                        ("bodies", i, key, j), f"acts on no physics step: no step starts in "
+                        f"[{start:g}, {end:g}) s (dt = {dt:.6g} s)", "widen the window to at "
+                        "least one step, or use a smaller dt"))
+                elif written > 0 and abs(acting * dt - written) > 1e-9 * max(written, dt):
+                    notes.append(f"bodies[{i}].{key}[{j}] acts on {acting} whole steps, "
+                                 f"{acting * dt:.6g} s instead of {written:.6g} s (forces act "
+                                 f"from step start to step start)")
+    return tuple(notes)

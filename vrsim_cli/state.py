@@ -53,6 +53,8 @@ class State:
     rot_matrix: np.ndarray | None = None
     rot_angmom: np.ndarray | None = None
     ode_step: float = 0.0
+    rot_energy0: np.ndarray | None = None  # (n_body,) J: the energy guard's baseline, once
+    # windowed forces have ended (None: the model's energy at t = 0)
 
     def replace(self, **changes) -> "State":
         return dataclasses.replace(self, **changes)
