@@ -401,6 +401,43 @@ def info(trajectory_file, as_json):
                    f" (dt {made.get('dt', '?')} s, {made.get('integrator', '?')})")
 
 
+# ----------------------------------------------------------------------- collision-proxies
+
+
+@cli.command("collision-proxies")
+@click.argument("scene_file", type=click.Path(dir_okay=False))
+@click.option("--samples", type=click.IntRange(min=10), default=2000, show_default=True,
+              help="Points sampled on each surface.")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+@_reports_errors
+def collision_proxies(scene_file, samples, as_json):
+    """The error each collision proxy makes against a body's render mesh (slide 5.4.1).
+
+    Per mesh body and proxy (sphere, aabb, obb, hull, mesh): the Hausdorff distance
+    between the proxy's and the mesh's surfaces (sampled, a lower bound; both one-sided
+    distances too) and the proxy's volume over the mesh's."""
+    from vrsim_cli.collision.meshes import scene_proxy_report
+    from vrsim_cli.model import compile_model
+    from vrsim_cli.scene import load_scene
+
+    report = scene_proxy_report(compile_model(load_scene(scene_file)), samples)
+    if as_json:
+        click.echo(json.dumps(report, indent=2))
+        return
+    if not report:
+        click.echo(f"{scene_file}: no mesh bodies, nothing to compare")
+        return
+    for body in report:
+        click.echo(f"{body['body']} ({Path(body['file']).name}, {body['triangles']} "
+                   f"triangles, uses {body['geometry']}):")
+        click.echo(f"  {'proxy':<7} {'hausdorff m':>12} {'proxy->mesh':>12} "
+                   f"{'mesh->proxy':>12} {'volume ratio':>13}")
+        for row in body["proxies"]:
+            click.echo(f"  {row['proxy']:<7} {row['hausdorff_m']:>12.4g} "
+                       f"{row['proxy_to_mesh_m']:>12.4g} {row['mesh_to_proxy_m']:>12.4g} "
+                       f"{row['volume_ratio']:>13.4g}")
+
+
 class _Numbers(click.ParamType):
     """A comma-separated list of numbers, e.g. `-1,-0.99,-0.96`."""
 

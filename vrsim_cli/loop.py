@@ -5,7 +5,8 @@ One frame (at `frame_rate`):
   2. simulate:
      2.2 sensor-driven motion           (`navigation.step`, once per frame)
      2.1 dynamic motion                 (`dynamics.step`, `steps_per_frame` steps of `dt`)
-     2.3 collision response             (the collision issues)
+     2.3 collision                      (`collision.step`: detection, every step, when
+                                         the scene has a collision block; response: its issue)
   3. update the scene graph and render  (`scenegraph.step`; frames: `render`)
 The scene graph stage (keyframes, drives, parents) runs after every physics step and once
 at t = 0, not only once per frame: physics then sees kinematic nodes where they are, and
@@ -99,6 +100,11 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
     result = RunResult(state=state, profile=profile)
     every = model.output.every_steps
     last_written = -1
+    detect = None
+    if model.collision is not None:  # scenes without a collision block pay nothing
+        from vrsim_cli import collision
+        detect = collision.step
+        profile["collision"] = 0.0
     # keyframes, drives or parents move bodies: the scene graph stage runs
     animate = model.animation is not None and model.animation.has_motion
     if animate:
@@ -178,6 +184,10 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
                     t1 = t2
                 check_state(model, new)
                 profile["checks"] += clock() - t1
+                if detect is not None:  # 2.3 collision: contacts (detection only)
+                    t1 = clock()
+                    new = new.replace(contacts=detect(model, state, new))
+                    profile["collision"] += clock() - t1
                 state = new
                 result.state = state
                 if state.step % every == 0:  # the observer only where a sample needs it

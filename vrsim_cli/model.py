@@ -101,6 +101,9 @@ class Model:
     # The pos0/quat0 of a body with a parent are local (relative to the parent's frame).
     animation: Animation | None = None
     rigid: RigidModel | None = None  # rotation, springs, torques (rigid_model.py); None: point masses only
+    # collision.shapes.CollisionModel when the scene has a `collision` block, else None
+    # (then stage 2.3 costs nothing).
+    collision: object | None = None
 
     @property
     def n_body(self) -> int:
@@ -230,6 +233,13 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         shapes.extend([sphere] * count)
         emit.extend(particles["emit_step"])
 
+    collision = None
+    if data.get("collision") is not None:
+        from vrsim_cli.collision.shapes import compile_collision  # only scenes that collide
+        collision = compile_collision(scene, shapes, dim, problems)
+        if problems:
+            raise InputError(problems)
+
     n = len(names)
     mass = np.array(masses, dtype=float)
     return Model(
@@ -271,6 +281,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         frames=frames,
         animation=animation,
         rigid=rigid,
+        collision=collision,
     )
 
 
@@ -386,8 +397,8 @@ def _notes(data: dict) -> tuple:
     if not with_material:
         return ()
     return (f"material (restitution, friction) of {len(with_material)} body(ies), first "
-            f"bodies[{with_material[0]}], has no effect yet: this version detects no "
-            f"collisions and applies no collision response",)
+            f"bodies[{with_material[0]}], has no effect yet: this version detects "
+            f"collisions (with a collision block) but applies no collision response",)
 
 
 def _force_windows(scene: Scene, dt: float, n_steps: int, problems: list[Problem]) -> tuple:

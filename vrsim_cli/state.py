@@ -36,6 +36,9 @@ class State:
         orientation the dynamics integrates (body_quat is its quaternion, for output)
     rot_angmom: (n_rot, 3) kg m^2/s, angular momentum L in the world frame
     ode_step: s, the adaptive integrator's proposed step for the next interval (0: none)
+    contacts: collision.Contacts found by loop stage 2.3 at this step (None: the scene
+        has no collision block); an intermediate result like MuJoCo's mjData.contact,
+        not part of the state hash
     """
 
     step: int
@@ -55,6 +58,7 @@ class State:
     ode_step: float = 0.0
     rot_energy0: np.ndarray | None = None  # (n_body,) J: the energy guard's baseline, once
     # windowed forces have ended (None: the model's energy at t = 0)
+    contacts: object | None = None  # collision.Contacts of this step (stage 2.3)
 
     def replace(self, **changes) -> "State":
         return dataclasses.replace(self, **changes)

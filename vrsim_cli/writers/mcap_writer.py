@@ -6,7 +6,9 @@ Channels (JSON encoding, zstd-compressed chunks):
   colour, published at the first sample (planes are drawn as a 20 m square in `world`);
 - `/vrsim/state` (`vrsim.State`): the full state, the same numbers as the CSV columns;
 - `/vrsim/input` (`vrsim.Input`): the sensor values of every frame, when there is an
-  observer, so a later run can replay them (`input.replay`).
+  observer, so a later run can replay them (`input.replay`);
+- `/vrsim/contacts`, `/vrsim/contacts/raw`: collision contacts, when the scene has a
+  collision block (see mcap_contacts.py).
 Metadata record `vrsim`: the vrsim version, the scene file's name and text, dt, frame rate
 and integrator, so a trajectory file always says how it was made.
 """
@@ -135,6 +137,10 @@ class McapWriter:
             if model.animation is not None and model.animation.has_appearance:
                 from vrsim_cli.writers.mcap_animation import AnimationChannel
                 self.animation = AnimationChannel(self)
+            self.contacts = None  # collision contacts: see mcap_contacts.py
+            if getattr(model, "collision", None) is not None:
+                from vrsim_cli.writers.mcap_contacts import ContactsChannel
+                self.contacts = ContactsChannel(self, scene)
             self.writer.add_metadata("vrsim", {
                 "version": __version__, "scene_file": Path(model.scene_file).name,
                 "scene": model.scene_text, "dt": repr(model.dt),
@@ -173,6 +179,8 @@ class McapWriter:
                                            "entities": [{"name": name,
                                                          **dict(zip(STATE_COLUMNS, r))}
                                                         for name, r in zip(self.names, rows)]})
+        if self.contacts is not None:
+            self.contacts.write(ns, state, _pose, _vec, _color, _time)
         self.samples += 1
 
     def write_input(self, inputs) -> None:

@@ -1,0 +1,61 @@
+"""Contacts: the output of collision detection, structure of arrays over k contacts.
+
+Issue 7 (collision response) consumes this. Conventions (slide 5.4):
+- `normal` n^K points from body A to body B (unit length, world frame);
+- `point` P^K is the midpoint between the two witness points (the deepest point of each
+  solid), so it lies halfway inside the overlap when the solids penetrate;
+- `depth` is the penetration depth in m: > 0 penetrating, 0 touching, < 0 a gap (only
+  contacts with depth >= -tolerance are reported);
+- `toi` is NaN for a contact found at the end of the step; for a contact found by
+  continuous detection (the pair touches during the step but not at its end: a fast body
+  would tunnel) it is the time of impact in s after the step's start, and point, normal
+  and depth are those of the configuration at that time (depth in [-tolerance, 0]).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Contacts:
+    """body_a, body_b: (k,) int64 body indices, body_a < body_b
+    point: (k, 3) m, world frame
+    normal: (k, 3) unit, world frame, from A to B
+    depth: (k,) m, penetration depth (negative: gap within the tolerance)
+    toi: (k,) s after the step's start, NaN for contacts of the end-of-step state
+    """
+
+    body_a: np.ndarray
+    body_b: np.ndarray
+    point: np.ndarray
+    normal: np.ndarray
+    depth: np.ndarray
+    toi: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.depth)
+
+    @staticmethod
+    def empty() -> "Contacts":
+        return Contacts(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)),
+                        np.zeros((0, 3)), np.zeros(0), np.zeros(0))
+
+    @staticmethod
+    def concatenate(parts: list["Contacts"]) -> "Contacts":
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return Contacts.empty()
+        return Contacts(*(np.concatenate([getattr(p, f) for p in parts])
+                          for f in ("body_a", "body_b", "point", "normal", "depth", "toi")))
+
+    def pairs(self) -> set:
+        """The distinct (body_a, body_b) pairs in contact."""
+        return set(zip(self.body_a.tolist(), self.body_b.tolist()))
+
+
+def no_pair_contacts():
+    """The empty result of a pair function: (pair, point, normal, depth) with k = 0."""
+    return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
