@@ -294,7 +294,8 @@ def format_report(report: Report, *, show_all: bool = False, max_rows: int = 20)
                      f"{_fmt(e.pos_err):>9} {_fmt(e.angle_err):>9} {_fmt(e.vel_err):>9} "
                      f"{_fmt(e.angvel_err):>9} {first:>10}  {verdict}")
     if len(shown) < len(rows):
-        lines.append(f"... {len(rows) - len(shown)} more entities within tolerance "
+        more = "more " if shown else ""
+        lines.append(f"... {len(rows) - len(shown)} {more}entities within tolerance "
                      f"(--all lists them)")
     if any(e.only_a or e.only_b for e in rows):
         lines.append("note: the files have different sample times; errors are over the "
