@@ -377,8 +377,11 @@ def _emit(emitter: dict, dim: int, dt: float) -> dict:
                          np.zeros(count)], axis=1)
     nozzle = _vec3(emitter.get("position", [0.0] * dim), dim)
     width = max(4, len(str(count - 1)))
-    # First step whose time is >= i / rate (1e-9 slack for decimal round-off).
-    emit_step = np.maximum(0, np.ceil(np.arange(count) / float(emitter["rate"]) / dt - 1e-9))
+    # First step whose time is >= i / rate (1e-9 slack for decimal round-off). Start times
+    # past any run (or infinite: a tiny rate) clamp to MAX_STEPS + 1 before the int cast.
+    with np.errstate(over="ignore"):
+        start = np.arange(count) / float(emitter["rate"]) / dt - 1e-9
+    emit_step = np.maximum(0, np.ceil(np.minimum(start, MAX_STEPS + 1)))
     return {"names": [f"{emitter['name']}.{i:0{width}d}" for i in range(count)],
             "position": np.tile(nozzle, (count, 1)), "velocity": speed[:, None] * dirs,
             "emit_step": emit_step.astype(np.int64)}
