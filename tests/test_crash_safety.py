@@ -14,8 +14,7 @@ import pytest
 
 from conftest import REPO
 from vrsim_cli.trajectory import read_trajectory
-from vrsim_cli.writers import atomic
-from vrsim_cli.writers.atomic import AtomicFile
+from vrsim_cli.writers import atomic, tum_writer
 
 BALL = """
 vrsim: 1
@@ -73,11 +72,10 @@ def test_sigint_mid_run_finalises_a_tum_folder(write_scene, tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "vrsim_cli", "run", str(scene), "-o",
                              str(out), "--format", "tum", "--realtime"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 30
-    while not out.is_dir():  # the writer creates the folder when the run starts
-        assert time.monotonic() < deadline and proc.poll() is None
-        time.sleep(0.05)
-    time.sleep(0.5)
+    # TUM files appear only when the run ends: give the process time to import and start
+    # the 60 s realtime run (imports take ~0.3 s), then interrupt it
+    time.sleep(2.5)
+    assert proc.poll() is None
     proc.send_signal(signal.SIGINT)
     _stdout, stderr = proc.communicate(timeout=30)
     assert proc.returncode == 130, stderr
@@ -87,16 +85,25 @@ def test_sigint_mid_run_finalises_a_tum_folder(write_scene, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["ball.tum", "box.tum"]
 
 
-# Runs `vrsim run` with AtomicFile.commit patched to signal the process itself first: the
-# signal arrives while the output is being finalised (before the rename).
+# Runs `vrsim run` with the last step of finalising patched to signal the process itself
+# first: the signal arrives while the output is being finalised, before it is in place
+# (AtomicFile.commit for CSV and MCAP; the one os.sync of the TUM writer).
 SIGNAL_IN_COMMIT = """
 import os, signal, sys
+from vrsim_cli.writers import tum_writer
 from vrsim_cli.writers.atomic import AtomicFile
-real = AtomicFile.commit
+real_commit, real_sync = AtomicFile.commit, tum_writer.os.sync
 def commit(self):
     os.kill(os.getpid(), signal.{sig})
-    real(self)
+    real_commit(self)
+class Os:
+    def __getattr__(self, name):
+        return getattr(os, name)
+    def sync(self):
+        os.kill(os.getpid(), signal.{sig})
+        real_sync()
 AtomicFile.commit = commit
+tum_writer.os = Os()
 from vrsim_cli.cli import main
 sys.argv = ["vrsim", "run", {scene!r}, "-o", {out!r}] + {extra!r}
 main()
@@ -112,7 +119,7 @@ def test_signal_while_the_output_is_finalised(write_scene, tmp_path, sig, fmt):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           cwd=REPO, timeout=60)
     assert proc.returncode == 128 + getattr(signal, sig), proc.stderr
-    assert f"interrupted by {sig} as the run ended; output finalised" in proc.stderr
+    assert f"interrupted by {sig} at t = 1 s; output finalised" in proc.stderr
     assert len(read_trajectory(out).tracks["ball"].t) == 51  # the whole run
     assert not [p for p in tmp_path.rglob("*.partial")]
 
@@ -120,14 +127,12 @@ def test_signal_while_the_output_is_finalised(write_scene, tmp_path, sig, fmt):
 # ----------------------------------------------------------------------------- full disk
 
 
-@pytest.mark.parametrize("fmt", ["csv", "mcap", "tum"])
+@pytest.mark.parametrize("fmt", ["csv", "mcap"])
 def test_disk_full_at_fsync_leaves_the_previous_output(invoke, write_scene, tmp_path,
                                                        monkeypatch, fmt):
     """Some file systems report a full disk only when the data is flushed (fsync)."""
     out, extra = out_args(tmp_path, fmt)
-    previous = out / "ball.tum" if fmt == "tum" else out
-    previous.parent.mkdir(exist_ok=True)
-    previous.write_text("previous run\n")
+    out.write_text("previous run\n")
 
     def no_space(fd):
         raise OSError(errno.ENOSPC, "No space left on device")
@@ -135,44 +140,56 @@ def test_disk_full_at_fsync_leaves_the_previous_output(invoke, write_scene, tmp_
     monkeypatch.setattr(atomic.os, "fsync", no_space)
     result = invoke("run", write_scene(BALL), "-o", out, *extra)
     assert result.exit_code == 1 and "No space left on device" in result.stderr
-    assert previous.read_text() == "previous run\n"
+    assert out.read_text() == "previous run\n"
     assert not [p for p in tmp_path.rglob("*.partial")]
-    if fmt == "tum":
-        assert [p.name for p in out.iterdir()] == ["ball.tum"]
+
+
+def _disk_full_at(monkeypatch, file_name: str) -> None:
+    """Make the TUM writer's `open` fail like a full disk when it writes `file_name`."""
+    real_open = open
+
+    class Full:
+        def __init__(self, *args, **kwargs):
+            self.file = real_open(*args, **kwargs)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.file.close()
+
+        def write(self, data):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    def fake_open(path, *args, **kwargs):
+        if os.path.basename(path) == file_name:
+            return Full(path, *args, **kwargs)
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(tum_writer, "open", fake_open, raising=False)
 
 
 def test_tum_folder_is_not_half_replaced_when_a_later_file_fails(invoke, write_scene,
                                                                  tmp_path, monkeypatch):
-    """All files are written and synced before any is renamed: when box.tum cannot be
-    written, ball.tum must still be the previous one."""
+    """When box.tum cannot be written, ball.tum (written first) must still be the previous
+    one, and no stale or temporary folder is left beside it."""
     out = tmp_path / "out"
     out.mkdir()
     for name in ("ball", "box"):
         (out / f"{name}.tum").write_text(f"previous {name}\n")
-    real_write = AtomicFile.write
-
-    def write(self, data):
-        if self.path.name == "box.tum":
-            raise atomic.OutputError(f"cannot write {self.path}: No space left on device")
-        real_write(self, data)
-
-    monkeypatch.setattr(AtomicFile, "write", write)
+    _disk_full_at(monkeypatch, "box.tum")
     result = invoke("run", write_scene(BALL), "-o", out, "--format", "tum")
     assert result.exit_code == 1 and "No space left on device" in result.stderr
     assert (out / "ball.tum").read_text() == "previous ball\n"
     assert (out / "box.tum").read_text() == "previous box\n"
-    assert sorted(p.name for p in out.iterdir()) == ["ball.tum", "box.tum"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "scene.yaml"]
 
 
-def test_failed_tum_run_removes_the_folder_it_created(invoke, write_scene, tmp_path,
-                                                      monkeypatch):
-    def no_space(self, data):
-        raise atomic.OutputError(f"cannot write {self.path}: No space left on device")
-
-    monkeypatch.setattr(AtomicFile, "write", no_space)
+def test_failed_tum_run_leaves_no_folder_behind(invoke, write_scene, tmp_path, monkeypatch):
+    _disk_full_at(monkeypatch, "ball.tum")
     out = tmp_path / "new"
     assert invoke("run", write_scene(BALL), "-o", out, "--format", "tum").exit_code == 1
-    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml"]
 
 
 # ----------------------------------------------------------------------------- where a scene may write

@@ -298,17 +298,9 @@ BIG = "1" + "0" * 400  # an integer beyond the float range
      ":3:43: (document): YAML: cannot read this int value (Exceeds the limit (4300 digits)"),
     ("name: !!float x", ":3:7: (document): YAML: cannot read this float value"),
     ("name: !!bool maybe", ":3:7: (document): YAML: cannot read this bool value ('maybe')"),
-    ("dt: 1e-320", ":3:5: dt: a frame (1/frame_rate = 0.0167 s) would hold more than 2e+09 "
-                   "steps of dt = 1e-320 s"),
-    ("frame_rate: 5e-324", ":3:13: frame_rate: a frame (1/frame_rate = inf s) would hold"),
-    ("output: {rate: 1e-320}", ":3:16: output.rate: one sample every inf s is more than "
-                               "2e+09 physics steps apart"),
-    ("bodies: [{name: a, mass: 1, orientation: [1e308, 1e308, 0, 0]}]",
-     ":3:42: bodies[0].orientation: its length 1.41e+308 is outside 1e-150 .. 1e+150"),
-    ("bodies: [{name: p, type: static, shape: {type: plane, normal: [0, 1e-200, 0]}}]",
-     ":3:63: bodies[0].shape.normal: its length 1e-200 is outside 1e-150 .. 1e+150"),
-    ("emitters: [{name: e, count: 3, rate: 1, speed: 1, mass: 1, direction: [1e308, 1, 0]}]",
-     ":3:71: emitters[0].direction: its length 1e+308 is outside"),
+    ("dt: 1e-320", ":3:5: dt: must be >= 1e-09, got 1e-320"),
+    ("frame_rate: 5e-324", ":3:13: frame_rate: must be >= 0.001, got 5e-324"),
+    ("output: {rate: 1e-320}", ":3:16: output.rate: must be >= 1e-06, got 1e-320"),
     ('output: {file: "out\\0.csv"}', ":3:16: output.file: a path cannot hold a NUL character"),
     ('bodies: [{name: m, type: static, shape: {type: mesh, file: "m\\0.stl"}}]',
      ":3:60: bodies[0].shape.file: a path cannot hold a NUL character"),
@@ -316,7 +308,9 @@ BIG = "1" + "0" * 400  # an integer beyond the float range
 ])
 def test_found_by_fuzzing(write_scene, invoke, text, expected):
     """Files that broke vrsim (tracebacks, or control characters in messages) before the
-    fuzzer's findings were fixed: each is now a located error, exit 2."""
+    fuzzer's findings were fixed: each is now a located error, exit 2. (dt, frame_rate and
+    output.rate so small that step counts overflowed: fixed on main at the same time, by
+    lower bounds in the schema; kept here as regressions.)"""
     scene = write_scene("vrsim: 1\nduration: 1\n" + text + "\n")
     result = invoke("validate", scene)
     assert result.exit_code == 2 and f"error: {scene}{expected}" in result.stderr
@@ -338,7 +332,7 @@ def test_emitter_rate_too_slow_to_emit_within_the_run(write_scene, invoke, tmp_p
 
 def test_emitters_may_not_add_up_to_unbounded_memory(tmp_path):
     """1000 emitters of 100000 particles each pass the per-item limits; the total is capped
-    (the model would need ~160 GB)."""
+    (the model would need tens of GB)."""
     emitters = "".join(f"  - {{name: e{i}, count: 100000, rate: 1, speed: 1, mass: 1}}\n"
                        for i in range(1000))
     scene = tmp_path / "many.yaml"
@@ -347,7 +341,8 @@ def test_emitters_may_not_add_up_to_unbounded_memory(tmp_path):
     result = CliRunner().invoke(cli, ["validate", str(scene)], catch_exceptions=False)
     assert time.perf_counter() - start < 10  # generous; the point is: refused, not built
     assert result.exit_code == 2
-    assert "emitters: 100000000 entities in all" in result.stderr
+    assert "emitters: the scene has 100000000 bodies and particles; at most 1000000" in \
+        result.stderr
 
 
 
@@ -383,8 +378,7 @@ def test_merge_keys_override_without_false_duplicates(write_scene, invoke, tmp_p
                         "mass: 3}]\n", "twice.yaml")
     result = invoke("validate", twice)
     assert result.exit_code == 2
-    assert result.stderr == (f"error: {twice}:3:44: bodies[0].mass: duplicate key 'mass' "
-                             f"(first at line 3)\n")
+    assert result.stderr == f"error: {twice}:3:44: duplicate key 'mass' (first at line 3)\n"
 
 
 @pytest.mark.parametrize("depth", [65, 3000, 200_000])
@@ -436,3 +430,23 @@ def test_problems_are_capped_at_100_and_counted(write_scene, invoke):
     assert result.exit_code == 2 and len(lines) == 101
     assert lines[0].startswith(f"error: {scene}:3:10: bodies[0]: expected a mapping")
     assert lines[-1] == f"error: {scene}: ... and 4901 more problems"
+
+
+def test_vectors_at_the_ends_of_the_float_range_keep_their_direction(write_scene, invoke,
+                                                                     tmp_path):
+    """Normalising [1e308, 1e308, 0, 0] squares past the float range and 1e-200 squares to
+    zero: the fuzzer's first draft saw NaN quaternions and particles from such vectors."""
+    scene = write_scene("""
+        vrsim: 1
+        duration: 0.1
+        bodies:
+          - {name: a, mass: 1, orientation: [1e308, 1e308, 0, 0]}
+          - {name: p, type: static, shape: {type: plane, normal: [0, 1e-200, 0]}}
+        emitters: [{name: e, count: 3, rate: 100, speed: 1, mass: 1, direction: [1e308, 0, 0]}]
+        """)
+    out = tmp_path / "o.csv"
+    assert invoke("run", scene, "-o", out, "-q").exit_code == 0
+    tracks = read_trajectory(out).tracks
+    half = 0.5 ** 0.5  # 90 degrees about x; 1e-15 allows the round-off of the normalisation
+    assert tracks["a"].quat[0] == pytest.approx([half, half, 0, 0], abs=1e-15)
+    assert tracks["e.0000"].vel[0] == pytest.approx([1, 0, 0], abs=1e-15)
