@@ -305,3 +305,11 @@ def test_trajectory_without_tracks_reports_no_entities():
                                                      np.zeros((1, 3)), np.zeros((1, 3)))})
     report = compare(empty, one)
     assert not report.ok and report.only_in_b == ["ball"] and report.entities == []
+
+
+def test_nan_tolerance_and_control_characters_in_names(invoke, tmp_path):
+    a = write_csv(tmp_path / "a.csv", {"evil\x1b[2J": line()})
+    assert invoke("compare", a, a, "--atol", "nan").exit_code == 2
+    result = invoke("compare", a, a)
+    assert result.exit_code == 0 and "evil\\x1b[2J" in result.stdout
+    assert "\x1b" not in result.stdout

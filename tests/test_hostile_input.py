@@ -25,6 +25,7 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from conftest import SCENARIOS
 from vrsim_cli.cli import cli
 from vrsim_cli.trajectory import read_trajectory
 
@@ -57,6 +58,10 @@ BASE_2D = {"vrsim": 1, "dimension": 2, "duration": 0.05, "frame_rate": 100, "dt"
                        "velocity": [1, 0], "shape": {"type": "box", "size": [1, 1]}}],
            "output": {"file": "out.csv"}}
 BASE_TEXT = yaml.safe_dump(BASE, sort_keys=False)
+# The shipped scenarios too: they use every key the format has (observer and input,
+# keyframes, drives, emitters, 2D), and whatever scenarios other branches add.
+SCENARIO_TEXTS = [p.read_text("utf-8") for p in sorted(SCENARIOS.glob("*.yaml"))]
+BASES = [BASE, BASE_2D] + [yaml.safe_load(text) for text in SCENARIO_TEXTS]
 
 OUTSIDE_PATHS = ["../outside.csv", "../../outside.mcap", "/tmp/vrsim-fuzz-outside.csv",
                  "sub/../../outside.csv", "~/outside.csv", "link/outside.csv", "/etc/passwd",
@@ -106,7 +111,7 @@ def get(doc, path):
 
 @st.composite
 def mutated_documents(draw):
-    doc = copy.deepcopy(draw(st.sampled_from([BASE, BASE_2D])))
+    doc = copy.deepcopy(draw(st.sampled_from(BASES)))
     for _ in range(draw(st.integers(1, 4))):
         all_paths = list(paths(doc))
         path = draw(st.sampled_from(all_paths))
@@ -142,7 +147,7 @@ SNIPPETS = ["&a [1, 2]", "*a", "*undefined", "<<: *a", "!!python/object/apply:os
 
 @st.composite
 def broken_texts(draw):
-    text = draw(st.sampled_from([BASE_TEXT, yaml.safe_dump(BASE_2D)]))
+    text = draw(st.sampled_from([BASE_TEXT, yaml.safe_dump(BASE_2D)] + SCENARIO_TEXTS))
     for _ in range(draw(st.integers(1, 5))):
         op = draw(st.sampled_from(["insert", "insert", "delete", "truncate", "dupline"]))
         at = draw(st.integers(0, len(text)))

@@ -563,7 +563,7 @@ class _ToleranceOverride(click.ParamType):
         return pattern, tols
 
 
-_TOL = click.FloatRange(min=0.0, max=1e300)
+_TOL = _Finite(low=0.0)
 
 
 @cli.command()

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vrsim_cli.errors import InputError, Problem
+from vrsim_cli.errors import InputError, Problem, printable
 from vrsim_cli.trajectory import Track, Trajectory
 
 TIME_EPS_S = 1e-9  # s: two sample times within this are the same instant (MCAP stores ns)
@@ -99,7 +99,7 @@ class EntityResult:
 class Report:
     a: Trajectory
     b: Trajectory
-    entities: list = field(default_factory=list)  # EntityResult, in B's order then A's extras
+    entities: list = field(default_factory=list)  # EntityResult of the shared ones, B's order
     only_in_a: list = field(default_factory=list)  # entity names
     only_in_b: list = field(default_factory=list)
     allow_missing_entities: bool = False
@@ -271,7 +271,12 @@ def _fmt(x: float | None) -> str:
 
 def format_report(report: Report, *, show_all: bool = False, max_rows: int = 20) -> list[str]:
     """The report as lines of a readable table. Failing entities are always listed;
-    passing ones too when there are few (or `show_all`)."""
+    passing ones too when there are few (or `show_all`). Names from the files are printed
+    with control characters escaped."""
+    return [printable(line) for line in _report_lines(report, show_all, max_rows)]
+
+
+def _report_lines(report: Report, show_all: bool, max_rows: int) -> list[str]:
     a, b = report.a, report.b
     lines = [f"A: {a.source} ({a.format}, {len(a.tracks)} entities)",
              f"B: {b.source} ({b.format}, {len(b.tracks)} entities) - the reference",
