@@ -49,9 +49,16 @@ GOLDEN_SAMPLES = 21  # sample times kept per golden: compact, yet the whole run 
 # that and a million times below the smallest change in physics worth a regression
 # (a different integrator or dt moves the projectile by 7e-3 m).
 GOLDEN_TOLERANCE = Tolerance(atol=1e-9, rtol=1e-9, angle_tol=1e-9)
-# Scenarios whose dynamics amplify round-off (chaos, contact) may need their own tolerance,
+# Scenarios whose dynamics amplify round-off (chaos, contact) need their own tolerance,
 # stated and justified here: {"scenario name": Tolerance(...)}.
-SCENARIO_TOLERANCE: dict = {}
+SCENARIO_TOLERANCE: dict = {
+    # Rotation about the intermediate axis is unstable: one ulp more spin (5.0 ->
+    # 5.000000000000001 rad/s) moves the orientation by 2.3e-8 rad and the angular velocity
+    # by 4.6e-8 rad/s by t = 12 s. 1e-5 is 200 times that; halving dt, the smallest change
+    # worth catching here, moves them by 2.4e-3 rad and 4.8e-3 rad/s, 240 times above it.
+    # (Measured with `vrsim compare` on the perturbed runs, see docs/regression.md.)
+    "dzhanibekov": Tolerance(atol=1e-5, rtol=0.0, angle_tol=1e-5),
+}
 
 
 def platform_key() -> str:
