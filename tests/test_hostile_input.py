@@ -6,7 +6,8 @@ numerical blow-up. Never a traceback (CliRunner re-raises with catch_exceptions=
 never a hang (each example has a deadline; runs are cut to a few steps with --duration and
 --dt), never a file outside the scene's folder.
 
-The strategies add up to ~3000 examples; derandomized, so CI sees the same files every run.
+The strategies add up to 2300 examples (~25 s of CPU); derandomized, so CI sees the same
+files every run. A one-off undirected run of 11800 random examples found nothing more.
 """
 
 from __future__ import annotations
@@ -260,13 +261,13 @@ COMMON = dict(derandomize=True, database=None, deadline=timedelta(seconds=5),
                                      HealthCheck.filter_too_much])
 
 
-@settings(max_examples=1000, **COMMON)
+@settings(max_examples=800, **COMMON)
 @given(mutated_documents())
 def test_mutated_scenes(data):
     check_outcome(data)
 
 
-@settings(max_examples=1000, **COMMON)
+@settings(max_examples=800, **COMMON)
 @given(broken_texts())
 def test_broken_yaml(data):
     check_outcome(data)
@@ -306,6 +307,14 @@ BIG = "1" + "0" * 400  # an integer beyond the float range
     ("dt: 1e-320", ":3:5: dt: must be >= 1e-09, got 1e-320"),
     ("frame_rate: 5e-324", ":3:13: frame_rate: must be >= 0.001, got 5e-324"),
     ("output: {rate: 1e-320}", ":3:16: output.rate: must be >= 1e-06, got 1e-320"),
+    ("bodies: [{name: a, mass: 1, shape: {type: sphere, radius: 1.4e154}}]",
+     ":3:36: bodies[0].shape: the mass properties overflow the float range"),
+    ("bodies: [{name: b, mass: 1, shape: {type: box, size: [1.4e154, 0.4, 1]}}]",
+     ":3:36: bodies[0].shape: the mass properties overflow the float range"),
+    ("bodies: [{name: c, density: 1e300, shape: {type: box, size: [1e10, 1, 1]}}]",
+     ":3:43: bodies[0].shape: the mass properties overflow the float range"),
+    ("bodies: [{name: d, particles: {grid: {n: 2, size: 1e200, mass: 1e300}}}]",
+     ":3:31: bodies[0].particles: the mass properties overflow the float range"),
     ('output: {file: "out\\0.csv"}', ":3:16: output.file: a path cannot hold a NUL character"),
     ('bodies: [{name: m, type: static, shape: {type: mesh, file: "m\\0.stl"}}]',
      ":3:60: bodies[0].shape.file: a path cannot hold a NUL character"),

@@ -209,7 +209,25 @@ def _body_mass_properties(body: dict, dim: int, mesh_path: str | None = None) \
         -> MassProperties | None:
     """Mass properties of a dynamic scene body, or None for a point mass (no particles,
     no shape with a volume, no inertia). Raises MassPropertyError for bodies that cannot rotate
-    sensibly (e.g. all particles on one line and no explicit inertia)."""
+    sensibly (e.g. all particles on one line and no explicit inertia), and for numbers so
+    large that the mass properties overflow (a sphere of radius 1e154 m: r^5 > 1.8e308)."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are caught
+            return _body_mass_properties(body, dim, mesh_path)
+    except (OverflowError, np.linalg.LinAlgError):  # Python's float ** overflows loudly
+        raise _overflow(body) from None
+
+
+def _overflow(body: dict) -> MassPropertyError:
+    key = ("particles",) if "particles" in body else ("inertia",) if "inertia" in body \
+        else ("shape",)
+    return MassPropertyError(key, "the mass properties overflow the float range",
+                             "sizes, masses or densities this large do not fit in floating "
+                             "point")
+
+
+def _body_mass_properties(body: dict, dim: int, mesh_path: str | None) \
+        -> MassProperties | None:
     particles = body.get("particles")
     shape = body.get("shape")
     has_shape = shape is not None and shape["type"] in SHAPES_WITH_MASS
@@ -244,6 +262,8 @@ def _body_mass_properties(body: dict, dim: int, mesh_path: str | None = None) \
         props = MassProperties(props.mass, props.com, explicit_inertia(body["inertia"], dim),
                                "inertia (explicit)", props.particles, props.particle_mass,
                                props.grid_n)
+    if not np.isfinite([props.mass, *props.com, *props.inertia.ravel()]).all():
+        raise _overflow(body)
     _check_inertia(props, dim, "inertia" in body, body)
     return props
 

@@ -238,8 +238,8 @@ def _load_yaml(text: str, file: str):
                                           "a scene starts with 'vrsim: 1'")]
         # Duplicate keys are found before construction, which folds merge keys (<<) into
         # their mappings; a key given beside a merge overrides it, as YAML intends.
+        _check_expansion(node)  # first: merge keys expand while constructing; bombs end here
         _duplicate_keys(node, problems, file, [MAX_NODES], set())
-        _check_expansion(node)  # before constructing: merge keys expand while constructing
         data = loader.construct_document(node)
     except yaml.YAMLError as exc:
         return None, {}, {}, [_yaml_problem(file, exc, text)]
