@@ -6,8 +6,9 @@ numerical blow-up. Never a traceback (CliRunner re-raises with catch_exceptions=
 never a hang (each example has a deadline; runs are cut to a few steps with --duration and
 --dt), never a file outside the scene's folder.
 
-The strategies add up to 2300 examples (~25 s of CPU); derandomized, so CI sees the same
-files every run. A one-off undirected run of 11800 random examples found nothing more.
+The strategies add up to 2100 examples (~30 s of CPU); derandomized, so CI sees the same
+files every run. Two one-off undirected runs of 11800 and 10600 random examples found
+nothing more than what is fixed here.
 """
 
 from __future__ import annotations
@@ -261,13 +262,13 @@ COMMON = dict(derandomize=True, database=None, deadline=timedelta(seconds=5),
                                      HealthCheck.filter_too_much])
 
 
-@settings(max_examples=800, **COMMON)
+@settings(max_examples=700, **COMMON)
 @given(mutated_documents())
 def test_mutated_scenes(data):
     check_outcome(data)
 
 
-@settings(max_examples=800, **COMMON)
+@settings(max_examples=700, **COMMON)
 @given(broken_texts())
 def test_broken_yaml(data):
     check_outcome(data)
