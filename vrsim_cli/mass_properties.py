@@ -200,9 +200,21 @@ def body_mass_properties(body: dict, dim: int, mesh_path: str | None = None) \
         -> MassProperties | None:
     """The body's mass properties (see _body_mass_properties). Overflow and NaN from
     extreme inputs are caught by _check_inertia, which names the key; numpy's warnings
-    about them would only add noise."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        return _body_mass_properties(body, dim, mesh_path)
+    about them would only add noise. Python's float `**` raises OverflowError instead (a
+    sphere of radius 1e154 m: r^5 > 1.8e308), and eigvalsh can fail on such matrices: those
+    become the same kind of located error."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            return _body_mass_properties(body, dim, mesh_path)
+    except (OverflowError, np.linalg.LinAlgError):
+        raise _overflow(body) from None
+
+
+def _overflow(body: dict) -> MassPropertyError:
+    key = ("particles",) if "particles" in body else ("inertia",) if "inertia" in body \
+        else ("shape",)
+    return MassPropertyError(key, "the mass properties overflow the float range",
+                             "use values of a realistic size")
 
 
 def _body_mass_properties(body: dict, dim: int, mesh_path: str | None = None) \

@@ -308,7 +308,24 @@ def _output_spec(scene: Scene, out: dict, override, every_steps: int,
         problems.append(scene.problem(("output", "file"), f"cannot tell the format of "
                                       f"'{out['file']}'", "use a .mcap or .csv suffix, or set "
                                       "output.format (tum writes a folder)"))
+    problems.extend(_output_target_problems(scene, path, fmt))
     return OutputSpec(path, fmt, every_steps)
+
+
+def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[Problem]:
+    """What would fail only after the whole run, or destroy the input: a missing folder, a
+    file format aimed at a folder, a TUM folder aimed at a file, the scene file itself."""
+    at = ("output", "file")
+    if scene.file and path == Path(scene.file).resolve():
+        return [scene.problem(at, "the output would overwrite the scene file itself")]
+    if not path.parent.is_dir():
+        return [scene.problem(at, f"folder '{path.parent}' does not exist",
+                              "paths are relative to the scene file's folder")]
+    if fmt in ("csv", "mcap") and path.is_dir():
+        return [scene.problem(at, f"'{scene.get(at)}' is a folder; {fmt} output is a file")]
+    if fmt == "tum" and path.exists() and not path.is_dir():
+        return [scene.problem(at, f"'{scene.get(at)}' is a file; tum output is a folder")]
+    return []
 
 
 def _existing_file(scene: Scene, path: tuple, problems: list[Problem]) -> str | None:
@@ -377,8 +394,11 @@ def _emit(emitter: dict, dim: int, dt: float) -> dict:
                          np.zeros(count)], axis=1)
     nozzle = _vec3(emitter.get("position", [0.0] * dim), dim)
     width = max(4, len(str(count - 1)))
-    # First step whose time is >= i / rate (1e-9 slack for decimal round-off).
-    emit_step = np.maximum(0, np.ceil(np.arange(count) / float(emitter["rate"]) / dt - 1e-9))
+    # First step whose time is >= i / rate (1e-9 slack for decimal round-off). Start times
+    # past any run (or infinite: a tiny rate) clamp to MAX_STEPS + 1 before the int cast.
+    with np.errstate(over="ignore"):
+        start = np.arange(count) / float(emitter["rate"]) / dt - 1e-9
+    emit_step = np.maximum(0, np.ceil(np.minimum(start, MAX_STEPS + 1)))
     return {"names": [f"{emitter['name']}.{i:0{width}d}" for i in range(count)],
             "position": np.tile(nozzle, (count, 1)), "velocity": speed[:, None] * dirs,
             "emit_step": emit_step.astype(np.int64)}
