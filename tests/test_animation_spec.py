@@ -166,3 +166,26 @@ def test_hermite_needs_tangents_and_kb_parameters_need_kb(write_scene):
         "F:11:34: bodies[0].keyframes.position.in_tangents[1]: expected 3 numbers, got 2",
         "F:12:18: bodies[0].keyframes.position.tension: 'tension' is a kochanek-bartels "
         "parameter (set interpolation: kochanek-bartels)"]
+
+
+@pytest.mark.parametrize("extra,message", [
+    ("position: {times: [0, 1, 2], values: [[0, 0, 0], [1.0e300, 0, 0], [0, 0, 0]], "
+     "interpolation: catmull-rom}", "must lie within +-1e+12"),
+    ("position: {times: [0, 1, 2], values: [[0, 0, 0], [1, 0, 0], [0, 0, 0]], "
+     "interpolation: kochanek-bartels, tension: 5}", "must be <= 1"),
+])
+def test_extreme_keyframe_parameters_are_input_errors(invoke, write_scene, extra, message):
+    scene = write_scene("vrsim: 1\nduration: 1\nbodies:\n  - name: k\n    type: kinematic\n"
+                        f"    keyframes:\n      {extra}\n")
+    result = invoke("validate", scene)
+    assert result.exit_code == 2 and message in result.stderr, result.stderr
+
+
+def test_a_kinematic_runaway_is_not_blamed_on_the_integrator(invoke, write_scene):
+    # at 2.9e8 m/s the car passes 1e12 m after ~3450 s: one step per second gets there
+    scene = write_scene("vrsim: 1\nduration: 5000\nframe_rate: 1\ndt: 1\nbodies:\n"
+                        "  - {name: car, type: kinematic, drive: {speed: 2.9e8}}\n")
+    result = invoke("run", scene)
+    assert result.exit_code == 1
+    assert "body 'car'" in result.stderr and "prescribed motion" in result.stderr
+    assert "integration" not in result.stderr

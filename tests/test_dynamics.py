@@ -260,3 +260,26 @@ def test_measured_order_on_an_oscillator(name, kwargs):
         errors.append(math.hypot(x[0] - math.cos(2.0), v[0] + math.sin(2.0)))
     orders = [math.log2(errors[i] / errors[i + 1]) for i in range(2)]
     assert orders[1] == pytest.approx(ORDER[name], abs=0.1), orders
+
+
+def test_a_force_window_between_step_starts_is_an_error_and_a_partial_one_a_note():
+    from vrsim_cli.errors import InputError
+    base = """
+vrsim: 1
+duration: 1
+frame_rate: 10
+dt: 0.1
+bodies: [{name: p, mass: 1, forces: [{force: [1, 0, 0], start: START, end: END}]}]
+"""
+    with pytest.raises(InputError, match=r"acts on no physics step: no step starts in "
+                                         r"\[0.505, 0.515\) s"):
+        compile_model(parse_scene(base.replace("START", "0.505").replace("END", "0.515")))
+    model = compile_model(parse_scene(base.replace("START", "0.05").replace("END", "0.25")))
+    # steps start at 0.1 and 0.2 s: two whole steps (0.2 s) instead of the written 0.2 s
+    # from 0.05 -- the same length, shifted, so no note; 0.05 to 0.2 gives one step
+    assert model.notes == ()
+    short = compile_model(parse_scene(base.replace("START", "0.05").replace("END", "0.2")))
+    assert short.notes == ("bodies[0].forces[0] acts on 1 whole steps, 0.1 s instead of "
+                           "0.15 s (forces act from step start to step start)",)
+    exact = compile_model(parse_scene(base.replace("START", "0.1").replace("END", "0.3")))
+    assert exact.notes == ()

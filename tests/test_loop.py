@@ -92,7 +92,8 @@ bodies: [{name: ball, mass: 1, position: [0, 10, 0], velocity: [1, 0, 0]}]
 
 
 @pytest.mark.parametrize("sig,code,suffix", [(signal.SIGINT, 130, "mcap"),
-                                             (signal.SIGTERM, 143, "csv")])
+                                             (signal.SIGTERM, 143, "csv"),
+                                             (signal.SIGTERM, 143, "mcap")])
 def test_signal_mid_run_finalises_the_output(write_scene, tmp_path, sig, code, suffix):
     scene = write_scene(LONG)
     out = tmp_path / f"run.{suffix}"

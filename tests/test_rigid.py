@@ -611,3 +611,77 @@ springs: [{body: bob, to: ceiling, to_point: [1, 0, 0], stiffness: 50, damping: 
     anchor = np.array([0.0, 3.0, 0.0])
     direction = np.array([1.0, -3.0, 0.0]) / math.sqrt(10.0)
     assert s1.body_pos[1] == pytest.approx(anchor + 0.5 * direction, abs=1e-10)
+
+
+# ----------------------------------------------------------------------------- review fixes
+
+
+def test_rotation_overflow_in_a_step_stops_the_run_naming_the_body(invoke, write_scene,
+                                                                   tmp_path):
+    # A torque that overflows to Inf: the rotation becomes non-finite inside the step; the
+    # run must stop with exit 1 naming body and time and keep the output (no traceback).
+    scene = write_scene("""
+        vrsim: 1
+        duration: 0.1
+        frame_rate: 100
+        dt: 0.01
+        gravity: [0, 0, 0]
+        bodies:
+          - name: box
+            shape: {type: box, size: [1, 1, 1]}
+            mass: 1.0e200
+            forces: [{force: [1.0e160, 0, 0], point: [0, 1.0e160, 0]}]
+        """)
+    out = tmp_path / "o.csv"
+    result = invoke("run", scene, "-o", out)
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert "body 'box', t = 0.01 s" in result.stderr
+    assert out.exists()
+
+
+@pytest.mark.parametrize("body,key", [
+    ("{name: b, density: 1.0e300, shape: {type: sphere, radius: 1.0e10}}", "bodies[0].density"),
+    ("{name: b, particles: {grid: {n: 4, size: 1.0e200, mass: 1.0e300}}}", "bodies[0].particles"),
+])
+def test_overflowing_mass_properties_are_input_errors(invoke, write_scene, body, key):
+    scene = write_scene(f"vrsim: 1\nduration: 1\nbodies: [{body}]\n")
+    for command in ("run", "mass-properties"):
+        result = invoke(command, scene)
+        assert result.exit_code == 2, (command, result.output)
+        assert f"{key}: the mass properties overflow" in result.stderr
+
+
+def test_a_windowed_force_does_not_switch_the_energy_guard_off(invoke, write_scene):
+    # explicit Euler gains energy on the Dzhanibekov box; a one-step force at the start
+    # must not hide that: the guard watches from the end of the window, against the energy
+    # then (without the force the same run stops at 9.78 s).
+    from conftest import SCENARIOS
+    text = (SCENARIOS / "dzhanibekov.yaml").read_text()
+    assert "forces" not in text
+    scene = write_scene(text)
+    plain = invoke("run", scene, "--integrator", "euler")
+    assert plain.exit_code == 1 and "the energy grew" in plain.stderr
+    from vrsim_cli.scene import load_scene
+    import yaml
+    data = yaml.safe_load(text)
+    data["bodies"][0]["forces"] = [{"force": [0, 0, 1e-9], "end": 0.004}]
+    forced = write_scene(yaml.safe_dump(data), "forced.yaml")
+    result = invoke("run", forced, "--integrator", "euler")
+    assert result.exit_code == 1 and "the energy grew" in result.stderr
+
+
+def test_inertia_error_names_the_key_that_made_it(invoke, write_scene):
+    scene = write_scene("vrsim: 1\nduration: 1\nbodies: [{name: b, shape: {type: sphere, "
+                        "radius: 1.0e-200}, density: 1.0e-300}]\n")
+    result = invoke("validate", scene)
+    assert result.exit_code == 2 and "bodies[0].density:" in result.stderr
+    assert "particles" not in result.stderr.split("(")[0]
+
+
+def test_the_slides_cube_keeps_its_body_axes_as_principal_axes():
+    from vrsim_cli.mass_properties import body_mass_properties
+    props = body_mass_properties({"name": "c", "particles": {"grid": {"n": 10, "size": 2.0,
+                                                                       "mass": 1.0}}}, 3)
+    moments, axes = props.principal()
+    assert moments == pytest.approx([0.8] * 3, rel=1e-12)
+    assert np.array_equal(axes, np.eye(3))

@@ -28,6 +28,9 @@ POSE_TRACKS = ("position", "orientation", "angle_deg")
 Issue = tuple  # (key path, message, hint)
 
 
+MAX_KEY_VALUE = 1e12
+
+
 def _is_number(x) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool)
 
@@ -141,8 +144,13 @@ def _value_list(values, path: tuple, count: int, width) -> Iterator[Issue]:
         elif n != first:
             yield path + (i,), f"every key needs {first} numbers like the first, got {n}", None
             return
-        if any(not math.isfinite(v) for v in (value if isinstance(value, list) else [value])):
+        numbers = value if isinstance(value, list) else [value]
+        if any(not math.isfinite(v) for v in numbers):
             yield path + (i,), "must be finite", None
+        elif any(abs(v) > MAX_KEY_VALUE for v in numbers):
+            # spline tangents and arc-length tables multiply and square key values: keep
+            # them where that arithmetic stays finite (1e12 m is 7 times the Sun's distance)
+            yield path + (i,), f"must lie within +-{MAX_KEY_VALUE:.0e}", None
 
 
 def body_issues(bodies: list, dim: int) -> Iterator[Issue]:

@@ -540,6 +540,73 @@ def bench(quick, peers, names, repeats, folder):
                   " (no plots: pip install 'vrsim-cli[bench]' for matplotlib)"))
 
 
+# ----------------------------------------------------------------------------- compare
+
+
+class _ToleranceOverride(click.ParamType):
+    """`PATTERN=ATOL[,ANGLE_TOL]`: a per-entity tolerance (fnmatch pattern, e.g. 'drop.*')."""
+
+    name = "PATTERN=ATOL[,ANGLE_TOL]"
+
+    def convert(self, value, param, ctx):
+        pattern, sep, numbers = value.partition("=")
+        parts = numbers.split(",")
+        try:
+            if not sep or not pattern or len(parts) > 2:
+                raise ValueError
+            tols = [float(x) for x in parts]
+            if not all(0.0 <= x < float("inf") for x in tols):
+                raise ValueError
+        except ValueError:
+            self.fail(f"'{value}' is not PATTERN=ATOL or PATTERN=ATOL,ANGLE_TOL with "
+                      f"finite numbers >= 0 (e.g. ball=1e-6 or 'drop.*=1e-3,1e-4')", param, ctx)
+        return pattern, tols
+
+
+_TOL = _Finite(low=0.0)
+
+
+@cli.command()
+@click.argument("a", type=click.Path())
+@click.argument("b", type=click.Path())
+@click.option("--atol", type=_TOL, default=1e-9, show_default=True, help="Absolute "
+              "tolerance, in each quantity's SI unit (m, m/s, rad/s).")
+@click.option("--rtol", type=_TOL, default=0.0, show_default=True, help="Relative "
+              "tolerance, times the norm of B's value.")
+@click.option("--angle-tol", type=_TOL, default=1e-9, show_default=True, help="Orientation "
+              "tolerance in rad.")
+@click.option("--tol", "overrides", type=_ToleranceOverride(), multiple=True, help="Per-entity "
+              "ATOL (and angle tolerance), for entities matching PATTERN (shell-style); "
+              "repeatable, the last match wins.")
+@click.option("--allow-missing-entities", is_flag=True, help="Pass when the entity sets "
+              "differ, comparing the shared entities only.")
+@click.option("--all", "show_all", is_flag=True, help="List every entity, not only failing "
+              "ones, in long tables.")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable report.")
+@_reports_errors
+def compare(a, b, atol, rtol, angle_tol, overrides, allow_missing_entities, show_all, as_json):
+    """Compare trajectory A with the reference B (MCAP, CSV, CSV.GZ or TUM, any pair).
+
+    Exit 0 when every entity is within tolerance, 1 when not, 2 on unreadable input.
+    """
+    from vrsim_cli.compare import Tolerance, TolerancePlan, compare as compare_files
+    from vrsim_cli.compare import format_report
+    from vrsim_cli.trajectory import read_trajectory
+
+    default = Tolerance(atol, rtol, angle_tol)
+    plan = TolerancePlan(default, tuple(
+        (pattern, Tolerance(tols[0], rtol, tols[1] if len(tols) > 1 else angle_tol))
+        for pattern, tols in overrides))
+    report = compare_files(read_trajectory(a), read_trajectory(b), plan,
+                           allow_missing_entities=allow_missing_entities)
+    if as_json:
+        click.echo(json.dumps(report.as_dict(), indent=2))
+    else:
+        for line in format_report(report, show_all=show_all):
+            click.echo(line)
+    sys.exit(0 if report.ok else 1)
+
+
 def main() -> None:
     cli(prog_name="vrsim")
 

@@ -48,9 +48,18 @@ class Problem:
         where = f"{self.file}:{self.line}:{self.col}" if self.line else self.file
         if self.path is None or (not self.line and not self.path):
             text = f"{where}: {self.message}"
-            return f"{text} ({self.hint})" if self.hint else text
-        text = f"{where}: {format_key_path(self.path)}: {self.message}"
-        return f"{text} ({self.hint})" if self.hint else text
+        else:
+            text = f"{where}: {format_key_path(self.path)}: {self.message}"
+        return printable(f"{text} ({self.hint})" if self.hint else text)
+
+
+def printable(text: str) -> str:
+    """`text` with control and other invisible characters escaped (\\x1b, \\u2028): a
+    message quoting a hostile file stays one line and cannot drive the terminal."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
+                   for c in text)
 
 
 class VrsimError(Exception):
@@ -71,7 +80,7 @@ class InputError(VrsimError):
         super().__init__("\n".join(self.lines()))
 
     def lines(self) -> list[str]:
-        return [str(p) if p.file else p.message for p in self.problems]
+        return [str(p) if p.file else printable(p.message) for p in self.problems]
 
 
 class SimulationError(VrsimError):

@@ -30,7 +30,7 @@ import numpy as np
 
 from vrsim_cli import dynamics, navigation, rigid, scenegraph, sensors
 from vrsim_cli.errors import SimulationError
-from vrsim_cli.model import Model
+from vrsim_cli.model import BODY_KINEMATIC, Model
 from vrsim_cli.state import State
 
 # Beyond these a run has blown up numerically, not simulated anything physical.
@@ -78,8 +78,10 @@ def _check_translation(model: Model, state: State) -> None:
     body = int(np.argmax(far)) if far.any() else int(np.argmax(np.abs(vel).max(axis=1)))
     what = (f"moved more than {MAX_POSITION_M:.0e} m from the origin" if far.any() else
             f"moves faster than light ({np.abs(vel[body]).max():.3g} m/s along an axis)")
-    raise SimulationError(f"{what}: the integration blew up; try a smaller dt or another "
-                          f"integrator", body=model.body_name[body], t=state.t)
+    why = ("its prescribed motion (velocity, keyframes or drive) leaves the simulated world"
+           if model.body_type[body] == BODY_KINEMATIC else
+           "the integration blew up; try a smaller dt or another integrator")
+    raise SimulationError(f"{what}: {why}", body=model.body_name[body], t=state.t)
 
 
 def run(model: Model, state: State, writer=None, *, realtime: bool = False,

@@ -61,7 +61,9 @@ class MassProperties:
         inertia = self.inertia
         off = inertia - np.diag(np.diag(inertia))
         if np.abs(off).max() <= 1e-12 * np.abs(inertia).max():
-            order = np.argsort(np.diag(inertia), kind="stable")
+            # moments equal up to round-off count as equal, so the body axes keep their order
+            key = np.round(np.diag(inertia) / max(np.abs(inertia).max(), 1e-300), 12)
+            order = np.argsort(key, kind="stable")
             axes = np.eye(3)[:, order]
             if np.linalg.det(axes) < 0:
                 axes[:, 2] = -axes[:, 2]
@@ -196,6 +198,27 @@ def explicit_inertia(value, dim: int) -> np.ndarray:
 
 def body_mass_properties(body: dict, dim: int, mesh_path: str | None = None) \
         -> MassProperties | None:
+    """The body's mass properties (see _body_mass_properties). Overflow and NaN from
+    extreme inputs are caught by _check_inertia, which names the key; numpy's warnings
+    about them would only add noise. Python's float `**` raises OverflowError instead (a
+    sphere of radius 1e154 m: r^5 > 1.8e308), and eigvalsh can fail on such matrices: those
+    become the same kind of located error."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            return _body_mass_properties(body, dim, mesh_path)
+    except (OverflowError, np.linalg.LinAlgError):
+        raise _overflow(body) from None
+
+
+def _overflow(body: dict) -> MassPropertyError:
+    key = ("particles",) if "particles" in body else ("inertia",) if "inertia" in body \
+        else ("shape",)
+    return MassPropertyError(key, "the mass properties overflow the float range",
+                             "use values of a realistic size")
+
+
+def _body_mass_properties(body: dict, dim: int, mesh_path: str | None = None) \
+        -> MassProperties | None:
     """Mass properties of a dynamic scene body, or None for a point mass (no particles,
     no shape with a volume, no inertia). Raises MassPropertyError for bodies that cannot rotate
     sensibly (e.g. all particles on one line and no explicit inertia)."""
@@ -233,13 +256,17 @@ def body_mass_properties(body: dict, dim: int, mesh_path: str | None = None) \
         props = MassProperties(props.mass, props.com, explicit_inertia(body["inertia"], dim),
                                "inertia (explicit)", props.particles, props.particle_mass,
                                props.grid_n)
-    _check_inertia(props, dim, "inertia" in body)
+    _check_inertia(props, dim, "inertia" in body, body)
     return props
 
 
-def _check_inertia(props: MassProperties, dim: int, explicit: bool) -> None:
-    key = ("inertia",) if explicit else ("particles",)
+def _check_inertia(props: MassProperties, dim: int, explicit: bool, body: dict) -> None:
+    source = ("particles", "density", "mass")
+    key = ("inertia",) if explicit else next(((k,) for k in source if k in body), ("shape",))
     inertia = props.inertia
+    if not (math.isfinite(props.mass) and np.isfinite(inertia).all()):
+        raise MassPropertyError(key, "the mass properties overflow (mass "
+                                f"{props.mass:.3g} kg)", "use values of a realistic size")
     scale = max(np.abs(inertia).max(), 1e-300)
     if dim == 2:
         if not inertia[2, 2] > 0.0:

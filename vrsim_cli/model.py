@@ -169,6 +169,8 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
     n_steps = round(ratio) if abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio) else \
         math.ceil(ratio)
 
+    window_notes = _force_windows(scene, dt, n_steps, problems)
+
     # --- output
     out = data.get("output") or {}
     rate = float(out.get("rate", frame_rate))
@@ -283,7 +285,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         body_index={name: i for i, name in enumerate(names)},
         observer=observer,
         inputs=inputs,
-        notes=_notes(data) + rigid_notes(data),
+        notes=_notes(data) + rigid_notes(data) + window_notes,
         # Static and kinematic bodies with analytic shapes (meshes join with collision).
         observer_obstacles=tuple(i for i, (kind, shape) in enumerate(zip(kinds, shapes))
                                  if kind != BODY_DYNAMIC and shape is not None
@@ -319,7 +321,24 @@ def _output_spec(scene: Scene, out: dict, override, every_steps: int,
         problems.append(scene.problem(("output", "file"), f"cannot tell the format of "
                                       f"'{out['file']}'", "use a .mcap or .csv suffix, or set "
                                       "output.format (tum writes a folder)"))
+    problems.extend(_output_target_problems(scene, path, fmt))
     return OutputSpec(path, fmt, every_steps)
+
+
+def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[Problem]:
+    """What would fail only after the whole run, or destroy the input: a missing folder, a
+    file format aimed at a folder, a TUM folder aimed at a file, the scene file itself."""
+    at = ("output", "file")
+    if scene.file and path == Path(scene.file).resolve():
+        return [scene.problem(at, "the output would overwrite the scene file itself")]
+    if not path.parent.is_dir():
+        return [scene.problem(at, f"folder '{path.parent}' does not exist",
+                              "paths are relative to the scene file's folder")]
+    if fmt in ("csv", "mcap") and path.is_dir():
+        return [scene.problem(at, f"'{scene.get(at)}' is a folder; {fmt} output is a file")]
+    if fmt == "tum" and path.exists() and not path.is_dir():
+        return [scene.problem(at, f"'{scene.get(at)}' is a file; tum output is a folder")]
+    return []
 
 
 def _existing_file(scene: Scene, path: tuple, problems: list[Problem]) -> str | None:
@@ -388,8 +407,11 @@ def _emit(emitter: dict, dim: int, dt: float) -> dict:
                          np.zeros(count)], axis=1)
     nozzle = _vec3(emitter.get("position", [0.0] * dim), dim)
     width = max(4, len(str(count - 1)))
-    # First step whose time is >= i / rate (1e-9 slack for decimal round-off).
-    emit_step = np.maximum(0, np.ceil(np.arange(count) / float(emitter["rate"]) / dt - 1e-9))
+    # First step whose time is >= i / rate (1e-9 slack for decimal round-off). Start times
+    # past any run (or infinite: a tiny rate) clamp to MAX_STEPS + 1 before the int cast.
+    with np.errstate(over="ignore"):
+        start = np.arange(count) / float(emitter["rate"]) / dt - 1e-9
+    emit_step = np.maximum(0, np.ceil(np.minimum(start, MAX_STEPS + 1)))
     return {"names": [f"{emitter['name']}.{i:0{width}d}" for i in range(count)],
             "position": np.tile(nozzle, (count, 1)), "velocity": speed[:, None] * dirs,
             "emit_step": emit_step.astype(np.int64)}
@@ -410,3 +432,31 @@ def _notes(data: dict) -> tuple:
     return (f"material (restitution, friction) of {len(with_material)} body(ies), first "
             f"bodies[{with_material[0]}], has no effect without a top-level collision "
             f"block: nothing collides",)
+
+
+def _force_windows(scene: Scene, dt: float, n_steps: int, problems: list[Problem]) -> tuple:
+    """Forces and torques act on whole steps: those whose start time lies in [start, end)
+    (dynamics.active_forces). A window holding no step start would silently do nothing: that
+    is an error. A window that does not cover whole steps acts longer or shorter than
+    written: that is said in a note."""
+    notes = []
+    for i, body in enumerate(scene.data.get("bodies") or []):
+        for key in ("forces", "torques"):
+            for j, item in enumerate(body.get(key) or []):
+                start, end = float(item.get("start", 0.0)), float(item.get("end", math.inf))
+                if not math.isfinite(end):
+                    continue
+                first = max(0, math.ceil(start / dt - 1e-9))
+                last = min(n_steps, math.ceil(end / dt - 1e-9))  # exclusive
+                acting = max(0, last - first)
+                written = min(end, n_steps * dt) - start
+                if acting == 0 and written > 0:
+                    problems.append(scene.problem(
+                        ("bodies", i, key, j), f"acts on no physics step: no step starts in "
+                        f"[{start:g}, {end:g}) s (dt = {dt:.6g} s)", "widen the window to at "
+                        "least one step, or use a smaller dt"))
+                elif written > 0 and abs(acting * dt - written) > 1e-9 * max(written, dt):
+                    notes.append(f"bodies[{i}].{key}[{j}] acts on {acting} whole steps, "
+                                 f"{acting * dt:.6g} s instead of {written:.6g} s (forces act "
+                                 f"from step start to step start)")
+    return tuple(notes)

@@ -144,7 +144,11 @@ def _omega(model: Model, R, L):
 
 
 def _finish_rotation(model: Model, R):
-    return orthonormalize(R) if model.rigid.orthonormalize and len(R) else R
+    # A non-finite R is left as it is: `check` then names the body and time (the SVD of the
+    # projection would only fail with a traceback).
+    if model.rigid.orthonormalize and len(R) and np.isfinite(R).all():
+        return orthonormalize(R)
+    return R
 
 
 def free_rotation(rigid: RigidModel, R, L, h: float, strang: bool):
@@ -240,7 +244,7 @@ def _dopri5(model: Model, state: State, mask):
         return np.concatenate([part.ravel() for part in f(t, *unpack(y))])
 
     def project(y):
-        if not model.rigid.orthonormalize or not r:
+        if not model.rigid.orthonormalize or not r or not np.isfinite(y).all():
             return y
         y = y.copy()
         y[cuts[2]:cuts[3]] = orthonormalize(y[cuts[2]:cuts[3]].reshape(r, 3, 3)).ravel()
@@ -285,6 +289,9 @@ def step(model: Model, state: State, mask: np.ndarray) -> State:
         R = R.copy()
         R[kin] = exp_so3(model.dt * rigid.rot_angvel0[kin]) @ state.rot_matrix[kin]
     n = state.step + 1
+    if rigid.n_rot and not (np.isfinite(R).all() and np.isfinite(L).all()):
+        # report at once: quaternions and angular velocities of a blown-up R mean nothing
+        check(model, state.replace(step=n, t=n * model.dt, rot_matrix=R, rot_angmom=L))
     quat, angvel = state.body_quat, state.body_angvel
     if rigid.n_rot:
         quat = quat.copy()
@@ -292,8 +299,12 @@ def step(model: Model, state: State, mask: np.ndarray) -> State:
         shown = R if rigid.orthonormalize else orthonormalize(R)
         quat[rigid.rot_index] = quat_from_matrix(shown)
         angvel[rigid.rot_index] = _omega(model, R, L)
-    return state.replace(step=n, t=n * model.dt, body_pos=x, body_vel=v, body_quat=quat,
-                         body_angvel=angvel, rot_matrix=R, rot_angmom=L, ode_step=ode_step)
+    new = state.replace(step=n, t=n * model.dt, body_pos=x, body_vel=v, body_quat=quat,
+                        body_angvel=angvel, rot_matrix=R, rot_angmom=L, ode_step=ode_step)
+    guard_from = rigid.energy_guard_from
+    if rigid.energy_guard and 0.0 < guard_from and state.t < guard_from <= new.t:
+        new = new.replace(rot_energy0=energy(model, new)[0])  # the windows have closed
+    return new
 
 
 # ----------------------------------------------------------------------------- checks
@@ -320,16 +331,17 @@ def check(model: Model, state: State) -> None:
                                   "Inf): the integration blew up; try a smaller dt or "
                                   "another integrator", body=body, t=state.t)
     # Energy grows over many steps, not in one: check it once per frame (and at the end).
-    if not rigid.energy_guard or (state.step % model.steps_per_frame
-                                  and state.step != model.n_steps):
+    if not rigid.energy_guard or state.t < rigid.energy_guard_from or (
+            state.step % model.steps_per_frame and state.step != model.n_steps):
         return
+    baseline = rigid.energy0_body if state.rot_energy0 is None else state.rot_energy0
     per_body, kinetic, spring = energy(model, state)
-    gain = per_body.sum() - rigid.energy0_body.sum()
+    gain = per_body.sum() - baseline.sum()
     mass = np.where(np.isfinite(model.body_mass), model.body_mass, 0.0)
     weight = float(mass.sum() * np.linalg.norm(model.gravity) * GRAVITY_SCALE_M)
     bound = ENERGY_GROWTH_LIMIT * (kinetic + abs(spring) + rigid.energy0_scale + weight)
     if gain > bound:
-        body = int(np.argmax(per_body - rigid.energy0_body))
+        body = int(np.argmax(per_body - baseline))
         raise SimulationError(f"the energy grew by {gain:.4g} J in a scene that conserves "
                               f"it (bound {bound:.4g} J): the integration blew up; try a "
                               f"smaller dt or another integrator",

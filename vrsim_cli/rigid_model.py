@@ -86,6 +86,9 @@ class RigidModel:
     static_forces: bool = False  # forces and torques depend on time only (not on x, v, R, L)
     energy0_body: np.ndarray | None = None  # (n_body,) J at t = 0 (energy_guard only)
     energy0_scale: float = 0.0  # J: kinetic + |spring| energy at t = 0 (energy_guard only)
+    # s: the guard watches the energy from this time on (0: from the start; when windowed
+    # forces or torques act, from the end of the last window, against the energy then).
+    energy_guard_from: float = 0.0
 
     @property
     def n_rot(self) -> int:
@@ -233,7 +236,12 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
     kinematic_spring = any(b >= 0 and kinds[b] == BODY_KINEMATIC for b in sb)
     static_forces = not (sa or any(force_has_point) or any(force_in_body)
                          or any(torque_in_body) or lin_damp.any() or ang_damp.any())
-    guard = not (data.get("emitters") or force_point or torque_body or kinematic_spring)
+    # Forces and torques inject energy while they act; once the last window has closed the
+    # scene conserves energy again. A force without an end keeps the guard off.
+    windows = [float(f.get("end", math.inf)) for b in bodies
+               for f in (b.get("forces") or []) + (b.get("torques") or [])]
+    guard_from = max(windows, default=0.0)
+    guard = not (data.get("emitters") or kinematic_spring) and math.isfinite(guard_from)
     n_force, n_torque, n_spring = len(force_point), len(torque_body), len(sa)
     rigid = RigidModel(
         rot_index=_frozen(rot_index, np.int64),
@@ -267,6 +275,7 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
         orthonormalize=bool((data.get("rotation") or {}).get("orthonormalize", True)),
         tolerance=float(data.get("tolerance", DEFAULT_TOLERANCE)),
         energy_guard=guard,
+        energy_guard_from=guard_from if guard else 0.0,
         mass_properties=tuple(props_all),
         static_forces=static_forces,
     )

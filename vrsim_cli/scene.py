@@ -16,6 +16,7 @@ import json
 import math
 import os
 import re
+import sys
 from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib import resources
@@ -32,6 +33,7 @@ SCHEMA_RESOURCE = "scene.schema.json"
 MAX_FILE_BYTES = 32 * 1024 * 1024  # a scene is text written by people; larger is a mistake
 MAX_NODES = 200_000  # values after alias expansion; bounds memory and validation time
 MAX_DEPTH = 64
+MAX_PROBLEMS = 100  # reported per file; the rest are counted
 MAX_BODIES = 1_000_000  # bodies plus emitted particles: beyond this a scene is a mistake
 
 _STR_TAG = "tag:yaml.org,2002:str"
@@ -46,6 +48,33 @@ _SceneLoader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
     re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
     list("-+0123456789."))
+
+def _fetch_flow_collection_start(self, TokenClass):
+    """Refuse `[` and `{` nested deeper than MAX_DEPTH while scanning: PyYAML's scanner keeps
+    a possible simple key per open bracket and rechecks them all for every token, so deep
+    bracket nesting costs time quadratic in the depth (3000 levels: seconds; a 32 MB file
+    of brackets: hours), long before the composer's recursion would stop."""
+    if self.flow_level >= MAX_DEPTH:
+        raise yaml.scanner.ScannerError(None, None, f"brackets nest deeper than {MAX_DEPTH} "
+                                        f"levels", self.get_mark())
+    yaml.SafeLoader.fetch_flow_collection_start(self, TokenClass)
+
+
+def _construct_located(self, node, deep=False):
+    """Constructors raise plain ValueError, KeyError, ... for values such as `!!float x`,
+    `!!bool maybe` or a 5000-digit integer (Python's int-from-text limit): report them as
+    YAML errors at the node, like every other problem."""
+    try:
+        return yaml.SafeLoader.construct_object(self, node, deep)
+    except (ValueError, KeyError, TypeError, OverflowError, IndexError, AttributeError) as exc:
+        detail = str(exc).split(";")[0]
+        raise yaml.constructor.ConstructorError(
+            None, None, f"cannot read this {node.tag.rsplit(':', 1)[-1]} value ({detail})",
+            node.start_mark) from None
+
+
+_SceneLoader.fetch_flow_collection_start = _fetch_flow_collection_start
+_SceneLoader.construct_object = _construct_located
 
 KeyPath = tuple  # tuple[str | int, ...]
 
@@ -121,6 +150,9 @@ class Scene:
         are the user's own and are not restricted.
         """
         raw = self.get(path)
+        if "\0" in raw:  # no file system takes it; os calls would raise ValueError
+            problems.append(self.problem(path, "a path cannot hold a NUL character"))
+            return None
         candidate = Path(os.path.expanduser(raw)) if tuple(path) in self.overrides else Path(raw)
         if tuple(path) in self.overrides:
             return candidate
@@ -167,7 +199,7 @@ def parse_scene(text: str, file: str = "<scene>", base_dir: str | os.PathLike = 
     """Parse and validate scene text. Raises InputError with every problem found."""
     data, value_pos, key_pos, problems = _load_yaml(text, file)
     if problems:
-        raise InputError(problems)
+        raise InputError(_capped(problems, file))
     scene = Scene(file, Path(base_dir), text, data, value_pos, key_pos)
     _validate(scene)
     return scene
@@ -180,7 +212,17 @@ def _validate(scene: Scene) -> None:
         problems = list(_semantic_problems(scene))
     if problems:
         problems.sort(key=lambda p: (p.line, p.col))
-        raise InputError(problems)
+        raise InputError(_capped(problems, scene.file))
+
+
+def _capped(problems: list[Problem], file: str) -> list[Problem]:
+    """The first MAX_PROBLEMS problems and a count of the rest: a hostile file (100000
+    aliases of a wrong value) must not print 100000 lines."""
+    if len(problems) <= MAX_PROBLEMS:
+        return problems
+    more = len(problems) - MAX_PROBLEMS
+    return problems[:MAX_PROBLEMS] + [Problem(file, 0, 0, (), f"... and {more} more "
+                                                              f"problems")]
 
 
 def _load_yaml(text: str, file: str):
@@ -196,12 +238,18 @@ def _load_yaml(text: str, file: str):
                                           "a scene starts with 'vrsim: 1'")]
         # Duplicate keys are found before construction, which folds merge keys (<<) into
         # their mappings; a key given beside a merge overrides it, as YAML intends.
+        _check_expansion(node)  # first: merge keys expand while constructing; bombs end here
         _duplicate_keys(node, problems, file, [MAX_NODES], set())
         data = loader.construct_document(node)
     except yaml.YAMLError as exc:
         return None, {}, {}, [_yaml_problem(file, exc, text)]
-    except RecursionError:
-        return None, {}, {}, [Problem(file, 0, 0, (), f"YAML nests too deeply")]
+    except _TooBig as exc:
+        return None, {}, {}, [Problem(file, exc.line, exc.col, exc.path, str(exc),
+                                      "YAML aliases may not expand to huge documents")]
+    except RecursionError:  # the composer recurses once per level of block nesting
+        return None, {}, {}, [Problem(file, loader.line + 1, loader.column + 1, (),
+                                      "YAML nests too deeply",
+                                      f"a scene needs at most {MAX_DEPTH} levels")]
     finally:
         loader.dispose()
     if not isinstance(data, dict):
@@ -269,6 +317,36 @@ def _duplicate_keys(node, problems, file, budget, visiting):
         visiting.discard(id(node))
 
 
+def _check_expansion(root) -> None:
+    """Raise _TooBig when the node graph, with every alias expanded, holds more than
+    MAX_NODES nodes or refers to itself. Each node's expanded size is computed once, so a
+    bomb is measured in time linear in its text, not in its expansion. This must run before
+    construction: PyYAML copies the pairs of merge keys (`<<: [*a, *a]`) while constructing,
+    so nested merges take time exponential in their depth (16 levels: seconds; 30: days)."""
+    sizes: dict = {}
+
+    def size(node) -> int:
+        key = id(node)
+        if key in sizes:
+            if sizes[key] is None:
+                raise _TooBig("document expands without end: an alias refers to its own "
+                              "anchor", node.start_mark.line + 1, node.start_mark.column + 1, ())
+            return sizes[key]
+        sizes[key] = None
+        total = 1
+        if isinstance(node, yaml.MappingNode):
+            total += sum(size(k) + size(v) for k, v in node.value)
+        elif isinstance(node, yaml.SequenceNode):
+            total += sum(size(item) for item in node.value)
+        if total > MAX_NODES:
+            raise _TooBig(f"document expands to more than {MAX_NODES} values",
+                          node.start_mark.line + 1, node.start_mark.column + 1, ())
+        sizes[key] = total
+        return total
+
+    size(root)
+
+
 def _walk(node, value, path, value_pos, key_pos, problems, file, budget, depth):
     """Record positions, and catch what the schema cannot: duplicate and non-string keys,
     NaN and infinities. Bounded by the node budget and depth (alias bombs, recursion)."""
@@ -300,6 +378,9 @@ def _walk(node, value, path, value_pos, key_pos, problems, file, budget, depth):
                   depth + 1)
     elif isinstance(value, float) and not math.isfinite(value):
         problems.append(Problem(file, line, col, path, f"must be a finite number, got {value}"))
+    elif isinstance(value, int) and abs(value) > sys.float_info.max:
+        problems.append(Problem(file, line, col, path, "number is too large (the largest "
+                                                       f"float is {sys.float_info.max:.4g})"))
 
 
 # ----------------------------------------------------------------------------- schema

@@ -59,6 +59,8 @@ class State:
     rot_matrix: np.ndarray | None = None
     rot_angmom: np.ndarray | None = None
     ode_step: float = 0.0
+    rot_energy0: np.ndarray | None = None  # (n_body,) J: the energy guard's baseline, once
+    # windowed forces have ended (None: the model's energy at t = 0)
     contacts: object | None = None  # collision.Contacts of this step (stage 2.3)
     contact_impulse: np.ndarray | None = None  # (k, 3) N s on body_b per contact (response)
 

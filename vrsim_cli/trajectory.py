@@ -7,7 +7,9 @@ with the file and, where known, the line.
 from __future__ import annotations
 
 import csv
+import gzip
 import json
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -58,6 +60,8 @@ def read_trajectory(path: str | Path) -> Trajectory:
     if not path.exists():
         raise InputError([Problem(str(path), 0, 0, (), "no such file")])
     suffix = path.suffix.lower()
+    if "".join(path.suffixes[-2:]).lower() == ".csv.gz":
+        return _read_csv(path, compressed=True)
     if suffix == ".mcap":
         return _read_mcap(path)
     if suffix == ".csv":
@@ -67,19 +71,22 @@ def read_trajectory(path: str | Path) -> Trajectory:
         traj.tracks[path.stem] = _read_tum_file(path)
         return traj
     raise InputError([Problem(str(path), 0, 0, (), "unknown trajectory format",
-                              "expected .mcap, .csv, .tum or a folder of .tum files")])
+                              "expected .mcap, .csv, .csv.gz, .tum or a folder of "
+                              ".tum files")])
 
 
 def _fail(path: Path, line: int, message: str, hint: str | None = None) -> InputError:
     return InputError([Problem(str(path), line, 1 if line else 0, None, message, hint)])
 
 
-def _read_csv(path: Path) -> Trajectory:
-    traj = Trajectory(str(path), "csv")
+def _read_csv(path: Path, compressed: bool = False) -> Trajectory:
+    """A vrsim CSV; `compressed`: gzip-compressed (.csv.gz, as the golden files are)."""
+    traj = Trajectory(str(path), "csv.gz" if compressed else "csv")
     times: dict[str, list] = {}
     rows: dict[str, list] = {}
     try:
-        with open(path, newline="", encoding="utf-8") as f:
+        opener = gzip.open if compressed else open
+        with opener(path, "rt", newline="", encoding="utf-8") as f:
             reader = csv.reader(f)
             header = next(reader, None)
             if header is None or tuple(header) != CSV_COLUMNS:
@@ -99,6 +106,10 @@ def _read_csv(path: Path) -> Trajectory:
                 rows.setdefault(name, []).append(values)
     except UnicodeDecodeError:
         raise _fail(path, 0, "not UTF-8 text") from None
+    except csv.Error as exc:  # e.g. a field longer than the csv module's limit
+        raise _fail(path, 0, f"not a readable CSV file ({exc})") from None
+    except (gzip.BadGzipFile, EOFError, zlib.error) as exc:
+        raise _fail(path, 0, f"not a readable gzip file ({exc})") from None
     except OSError as exc:
         raise _fail(path, 0, f"cannot read: {exc.strerror}") from None
     for name in times:

@@ -1,0 +1,301 @@
+"""No run loses data, and no scene writes where the user did not ask: blow-ups, signals
+(also while the output is being finalised), full disks, paths and symlinks, YAML tags."""
+
+from __future__ import annotations
+
+import errno
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from conftest import REPO
+from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.writers import atomic, tum_writer
+
+BALL = """
+vrsim: 1
+name: drop
+duration: 1.0
+frame_rate: 50
+dt: 0.01
+bodies: [{name: ball, mass: 1, position: [0, 10, 0]}, {name: box, mass: 2}]
+"""
+
+
+def out_args(tmp_path, fmt: str):
+    """(output path, extra options) for a format; TUM writes a folder."""
+    if fmt == "tum":
+        return tmp_path / "out", ["--format", "tum"]
+    return tmp_path / f"out.{fmt}", []
+
+
+# ----------------------------------------------------------------------------- blow-ups
+
+
+@pytest.mark.parametrize("fmt", ["csv", "mcap", "tum"])
+@pytest.mark.parametrize("body,message,last_good", [
+    # 1e300 N on 1e-10 kg: the velocity overflows to inf in the first step after 0.5 s
+    ("{name: rocket, mass: 1.0e-10, forces: [{force: [1.0e300, 0, 0], start: 0.5}]}",
+     "body 'rocket', t = 0.51 s: position or velocity is not finite (NaN or Inf)", 0.5),
+    # 1e8 m/s from 1e12 - 5e5 m crosses 1e12 m after 0.005 s: in the first step of 0.01 s
+    ("{name: probe, type: kinematic, position: [9.999995e11, 0, 0], velocity: [1.0e8, 0, 0]}",
+     "body 'probe', t = 0.01 s: moved more than 1e+12 m from the origin", 0.0),
+    ("{name: photon, type: kinematic, velocity: [0, 3.0e8, 0]}",
+     "body 'photon', t = 0.01 s: moves faster than light (3e+08 m/s along an axis)", 0.0),
+])
+def test_blow_up_exits_1_naming_body_and_time_and_keeps_the_output(
+        invoke, write_scene, tmp_path, fmt, body, message, last_good):
+    scene = write_scene(BALL.replace("bodies: [", f"bodies: [{body}, "))
+    out, extra = out_args(tmp_path, fmt)
+    result = invoke("run", scene, "-o", out, *extra)
+    assert result.exit_code == 1
+    assert result.stderr.startswith(f"error: {message}"), result.stderr
+    assert f"output up to the last good state kept in {out}" in result.stderr
+    traj = read_trajectory(out)
+    name = body.split(",")[0].split(": ")[1]
+    assert traj.tracks[name].t[-1] == pytest.approx(last_good, abs=1e-12)
+    assert not [p for p in tmp_path.rglob("*.partial")]
+
+
+# ----------------------------------------------------------------------------- signals
+
+LONG = BALL.replace("duration: 1.0", "duration: 60")
+
+
+def test_sigint_mid_run_finalises_a_tum_folder(write_scene, tmp_path):
+    scene = write_scene(LONG)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "vrsim_cli", "run", str(scene), "-o",
+                             str(out), "--format", "tum", "--realtime"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # TUM files appear only when the run ends: give the process time to import and start
+    # the 60 s realtime run (imports take ~0.3 s), then interrupt it
+    time.sleep(2.5)
+    assert proc.poll() is None
+    proc.send_signal(signal.SIGINT)
+    _stdout, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 130, stderr
+    traj = read_trajectory(out)
+    times = traj.tracks["ball"].t
+    assert 0.2 < times[-1] < 60 and len(times) == round(times[-1] * 50) + 1
+    assert sorted(p.name for p in out.iterdir()) == ["ball.tum", "box.tum"]
+
+
+# Runs `vrsim run` with the last step of finalising patched to signal the process itself
+# first: the signal arrives while the output is being finalised, before it is in place
+# (AtomicFile.commit for CSV and MCAP; the one os.sync of the TUM writer).
+SIGNAL_IN_COMMIT = """
+import os, signal, sys
+from vrsim_cli.writers import tum_writer
+from vrsim_cli.writers.atomic import AtomicFile
+real_commit, real_sync = AtomicFile.commit, tum_writer.os.sync
+def commit(self):
+    os.kill(os.getpid(), signal.{sig})
+    real_commit(self)
+class Os:
+    def __getattr__(self, name):
+        return getattr(os, name)
+    def sync(self):
+        os.kill(os.getpid(), signal.{sig})
+        real_sync()
+AtomicFile.commit = commit
+tum_writer.os = Os()
+from vrsim_cli.cli import main
+sys.argv = ["vrsim", "run", {scene!r}, "-o", {out!r}] + {extra!r}
+main()
+"""
+
+
+@pytest.mark.parametrize("sig,fmt", [("SIGTERM", "mcap"), ("SIGINT", "csv"),
+                                     ("SIGTERM", "tum")])
+def test_signal_while_the_output_is_finalised(write_scene, tmp_path, sig, fmt):
+    scene = write_scene(BALL)
+    out, extra = out_args(tmp_path, fmt)
+    code = SIGNAL_IN_COMMIT.format(sig=sig, scene=str(scene), out=str(out), extra=extra)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=REPO, timeout=60)
+    assert proc.returncode == 128 + getattr(signal, sig), proc.stderr
+    assert f"interrupted by {sig} at t = 1 s; output finalised" in proc.stderr
+    assert len(read_trajectory(out).tracks["ball"].t) == 51  # the whole run
+    assert not [p for p in tmp_path.rglob("*.partial")]
+
+
+# ----------------------------------------------------------------------------- full disk
+
+
+@pytest.mark.parametrize("fmt", ["csv", "mcap"])
+def test_disk_full_at_fsync_leaves_the_previous_output(invoke, write_scene, tmp_path,
+                                                       monkeypatch, fmt):
+    """Some file systems report a full disk only when the data is flushed (fsync)."""
+    out, extra = out_args(tmp_path, fmt)
+    out.write_text("previous run\n")
+
+    def no_space(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(atomic.os, "fsync", no_space)
+    result = invoke("run", write_scene(BALL), "-o", out, *extra)
+    assert result.exit_code == 1 and "No space left on device" in result.stderr
+    assert out.read_text() == "previous run\n"
+    assert not [p for p in tmp_path.rglob("*.partial")]
+
+
+def _disk_full_at(monkeypatch, file_name: str) -> None:
+    """Make the TUM writer's `open` fail like a full disk when it writes `file_name`."""
+    real_open = open
+
+    class Full:
+        def __init__(self, *args, **kwargs):
+            self.file = real_open(*args, **kwargs)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.file.close()
+
+        def write(self, data):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    def fake_open(path, *args, **kwargs):
+        if os.path.basename(path) == file_name:
+            return Full(path, *args, **kwargs)
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(tum_writer, "open", fake_open, raising=False)
+
+
+def test_tum_folder_is_not_half_replaced_when_a_later_file_fails(invoke, write_scene,
+                                                                 tmp_path, monkeypatch):
+    """When box.tum cannot be written, ball.tum (written first) must still be the previous
+    one, and no stale or temporary folder is left beside it."""
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("ball", "box"):
+        (out / f"{name}.tum").write_text(f"previous {name}\n")
+    _disk_full_at(monkeypatch, "box.tum")
+    result = invoke("run", write_scene(BALL), "-o", out, "--format", "tum")
+    assert result.exit_code == 1 and "No space left on device" in result.stderr
+    assert (out / "ball.tum").read_text() == "previous ball\n"
+    assert (out / "box.tum").read_text() == "previous box\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "scene.yaml"]
+
+
+def test_failed_tum_run_leaves_no_folder_behind(invoke, write_scene, tmp_path, monkeypatch):
+    _disk_full_at(monkeypatch, "ball.tum")
+    out = tmp_path / "new"
+    assert invoke("run", write_scene(BALL), "-o", out, "--format", "tum").exit_code == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml"]
+
+
+# ----------------------------------------------------------------------------- where a scene may write
+
+
+@pytest.fixture
+def folders(tmp_path):
+    """(scene folder, a folder outside it holding a file 'secret.txt')."""
+    inside, outside = tmp_path / "scene", tmp_path / "outside"
+    inside.mkdir()
+    outside.mkdir()
+    (outside / "secret.txt").write_text("secret\n")
+    return inside, outside
+
+
+def listing(folder):
+    return sorted((str(p.relative_to(folder)), p.read_bytes() if p.is_file() else b"")
+                  for p in folder.rglob("*"))
+
+
+@pytest.mark.parametrize("target", ["../outside/out.csv", "{outside}/out.csv",
+                                    "sub/../../outside/out.csv",
+                                    "link/out.csv", "secret-link", "link"])
+def test_scene_output_outside_its_folder_is_refused(invoke, folders, target):
+    inside, outside = folders
+    (inside / "link").symlink_to(outside, target_is_directory=True)
+    (inside / "secret-link").symlink_to(outside / "secret.txt")
+    before = listing(outside)
+    target = target.format(outside=outside)
+    fmt = ", format: tum" if target == "link" else (", format: csv" if "secret" in target
+                                                      else "")
+    scene = inside / "scene.yaml"
+    scene.write_text(BALL + f"output: {{file: '{target}'{fmt}}}\n")
+    result = invoke("run", scene)
+    assert result.exit_code == 2
+    assert "output.file: path" in result.stderr and "leaves the scene file's folder" in \
+        result.stderr
+    assert listing(outside) == before
+
+
+def test_a_tilde_is_not_the_home_folder_in_a_scene(invoke, folders):
+    """`~` is expanded for -o (the user's shell habit) but not in a scene: there it is a
+    folder name inside the scene's folder, which here does not exist."""
+    inside, _outside = folders
+    scene = inside / "scene.yaml"
+    scene.write_text(BALL + "output: {file: ~/vrsim-test-out.csv}\n")
+    result = invoke("run", scene)
+    assert result.exit_code == 2
+    assert f"output.file: folder '{inside}/~' does not exist" in result.stderr
+    assert not os.path.exists(os.path.expanduser("~/vrsim-test-out.csv"))
+
+
+def test_mesh_symlink_cannot_read_a_file_outside(invoke, folders):
+    """A mesh is embedded in MCAP output: a link to a file outside would leak it."""
+    inside, outside = folders
+    (inside / "bunny.stl").symlink_to(outside / "secret.txt")
+    scene = inside / "scene.yaml"
+    scene.write_text(BALL.replace("bodies: [", "bodies: [{name: bunny, type: static, shape: "
+                                               "{type: mesh, file: bunny.stl}}, "))
+    result = invoke("run", scene, "-o", inside / "out.mcap")
+    assert result.exit_code == 2 and "leaves the scene file's folder" in result.stderr
+    assert not (inside / "out.mcap").exists()
+
+
+def test_tum_output_replaces_a_planted_symlink_instead_of_writing_through_it(invoke,
+                                                                           folders):
+    inside, outside = folders
+    (inside / "out").mkdir()
+    (inside / "out" / "ball.tum").symlink_to(outside / "secret.txt")
+    scene = inside / "scene.yaml"
+    scene.write_text(BALL + "output: {file: out, format: tum}\n")
+    result = invoke("run", scene)
+    assert result.exit_code == 0, result.output
+    assert (outside / "secret.txt").read_text() == "secret\n"
+    assert not (inside / "out" / "ball.tum").is_symlink()
+    assert len(read_trajectory(inside / "out").tracks["ball"].t) == 51
+
+
+@pytest.mark.parametrize("target,message", [
+    ("scene.yaml", "the output would overwrite the scene file itself"),
+    (".", "'.' is a folder; csv output is a file"),
+])
+def test_scene_output_may_not_destroy_the_scene_or_aim_at_a_folder(invoke, folders, target,
+                                                                   message):
+    inside, _outside = folders
+    scene = inside / "scene.yaml"
+    text = BALL + f"output: {{file: '{target}', format: csv}}\n"
+    scene.write_text(text)
+    result = invoke("run", scene)
+    assert result.exit_code == 2 and f"output.file: {message}" in result.stderr
+    assert scene.read_text() == text
+
+
+@pytest.mark.parametrize("tag", [
+    "!!python/object/apply:os.system ['touch {pwned}']",
+    "!!python/object/new:os.system ['touch {pwned}']",
+    "!!python/name:os.system",
+    "!!python/module:os",
+    "!!python/object/apply:subprocess.check_call [['touch', '{pwned}']]",
+])
+def test_python_yaml_tags_execute_nothing(invoke, folders, tag):
+    inside, outside = folders
+    pwned = outside / "pwned"
+    scene = inside / "scene.yaml"
+    scene.write_text(BALL + "description: " + tag.format(pwned=pwned) + "\n")
+    for command in ("validate", "run"):
+        result = invoke(command, scene)
+        assert result.exit_code == 2 and "YAML tag not allowed" in result.stderr
+    assert not pwned.exists()
