@@ -75,7 +75,8 @@ bodies:
 @pytest.mark.parametrize("eps", [0.0, 0.5, 0.8, 1.0])
 @pytest.mark.parametrize("dt, frame_rate, integrator", [(0.01, 100, "rk4"),
                                                         (1 / 30, 30, "verlet"),
-                                                        (1 / 300, 100, "rk4")])
+                                                        (1 / 300, 100, "rk4"),
+                                                        (0.02, 50, "dopri5")])
 def test_bounces_are_exact_at_any_dt(eps, dt, frame_rate, integrator):
     """A ball dropped from h0 = 1 m onto a plane: impact k at t_k = t_0 + sum 2 v_j / g with
     v_j = sqrt(2 g h0) eps^j, apex heights h_k = h0 eps^(2k). With an integrator exact for
