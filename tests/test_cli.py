@@ -333,6 +333,6 @@ def test_the_foundation_issues_example_scene_runs_and_says_what_is_unused(invoke
     result = invoke("run", write_scene(ISSUE_EXAMPLE))
     assert result.exit_code == 0, result.stderr
     assert "note: material (restitution, friction) of 1 body(ies), first bodies[0], has no " \
-           "effect yet" in result.stderr
+           "effect without a top-level collision block" in result.stderr
     assert "dt = 0.001 s does not divide the frame interval 1/90 s" in result.stderr
     assert set(read_trajectory(tmp_path / "ball.mcap").tracks) == {"ball", "observer"}

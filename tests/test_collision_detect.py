@@ -30,7 +30,7 @@ duration: 0.05
 frame_rate: 100
 dt: 0.01
 gravity: [0, 0, 0]
-collision: {{tolerance: 0.001, continuous: {continuous}}}
+collision: {{tolerance: 0.001, continuous: {continuous}, response: none}}
 bodies:
   - {{name: wall, type: static, shape: {{type: box, size: [0.01, 2, 2]}}, position: [3, 1, 0]}}
   - name: bullet

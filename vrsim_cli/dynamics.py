@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+import dataclasses
+
 from vrsim_cli.integrators import INTEGRATORS
 from vrsim_cli.model import BODY_DYNAMIC, Model
 from vrsim_cli.state import State
@@ -72,3 +74,11 @@ def step(model: Model, state: State) -> State:
     n = state.step + 1
     new = state.replace(step=n, t=n * model.dt, body_pos=pos, body_vel=vel)
     return emit(model, new) if model.has_emitters else new
+
+
+def advance(model: Model, state: State, h: float) -> State:
+    """The state after time h (0 < h <= dt) of the same dynamics, with the step counter
+    unchanged and t = state.t + h: collision response integrates up to a time of impact
+    and on from it with this. Time windows of forces are sampled at state.t, as in step."""
+    new = step(dataclasses.replace(model, dt=h), state)
+    return new.replace(step=state.step, t=state.t + h)

@@ -6,7 +6,10 @@ One frame (at `frame_rate`):
      2.2 sensor-driven motion           (`navigation.step`, once per frame)
      2.1 dynamic motion                 (`dynamics.step`, `steps_per_frame` steps of `dt`)
      2.3 collision                      (`collision.step`: detection, every step, when
-                                         the scene has a collision block; response: its issue)
+                                         the scene has a collision block; with a response,
+                                         `collision.response.step`: impacts located in
+                                         time, resting contact solved; it integrates the
+                                         cut steps with `dynamics.advance`)
   3. update the scene graph and render  (`scenegraph.step`; frames: `render`)
 The scene graph stage (keyframes, drives, parents) runs after every physics step and once
 at t = 0, not only once per frame: physics then sees kinematic nodes where they are, and
@@ -100,11 +103,14 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
     result = RunResult(state=state, profile=profile)
     every = model.output.every_steps
     last_written = -1
-    detect = None
+    detect = respond = None
     if model.collision is not None:  # scenes without a collision block pay nothing
         from vrsim_cli import collision
         detect = collision.step
         profile["collision"] = 0.0
+        if model.response is not None:  # response detects for itself (impacts, rest)
+            from vrsim_cli.collision import response
+            detect, respond = None, response.step
     # keyframes, drives or parents move bodies: the scene graph stage runs
     animate = model.animation is not None and model.animation.has_motion
     if animate:
@@ -181,6 +187,11 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
                     new = scenegraph.step(model, new, tuple(a[k] for a in motion))
                     t2 = clock()
                     profile["scenegraph"] += t2 - t1
+                    t1 = t2
+                if respond is not None:  # 2.3 collision: detection and response
+                    new = respond(model, state, new, dynamics.advance)
+                    t2 = clock()
+                    profile["collision"] += t2 - t1
                     t1 = t2
                 check_state(model, new)
                 profile["checks"] += clock() - t1

@@ -12,6 +12,7 @@ Simulated time is always `step_index * dt`, never a running sum, so it does not 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,6 +105,9 @@ class Model:
     # collision.shapes.CollisionModel when the scene has a `collision` block, else None
     # (then stage 2.3 costs nothing).
     collision: object | None = None
+    # collision.response_model.ResponseModel: how contacts change the motion (slide
+    # 5.4.2); None without a collision block or with `collision.response: none` for all.
+    response: object | None = None
 
     @property
     def n_body(self) -> int:
@@ -233,10 +237,18 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         shapes.extend([sphere] * count)
         emit.extend(particles["emit_step"])
 
-    collision = None
+    collision = response = None
     if data.get("collision") is not None:
         from vrsim_cli.collision.shapes import compile_collision  # only scenes that collide
         collision = compile_collision(scene, shapes, dim, problems)
+        response = None
+        if collision is not None:
+            from vrsim_cli.collision.response_model import compile_response
+            response = compile_response(scene, len(names), _vec3(gravity, dim),
+                                        collision.tolerance, problems)
+            if response is not None and rigid is not None and BODY_KINEMATIC in kinds:
+                # a kinematic body that hits others does work on them: energy may grow
+                rigid = dataclasses.replace(rigid, energy_guard=False)
         if problems:
             raise InputError(problems)
 
@@ -282,6 +294,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         animation=animation,
         rigid=rigid,
         collision=collision,
+        response=response,
     )
 
 
@@ -414,11 +427,11 @@ def _fitting_rates(rate: float, dt: float, frame_rate: float) -> list[float]:
 def _notes(data: dict) -> tuple:
     """Keys that are valid but have no effect in this version, said out loud."""
     with_material = [i for i, b in enumerate(data.get("bodies") or []) if "material" in b]
-    if not with_material:
+    if not with_material or data.get("collision") is not None:
         return ()
     return (f"material (restitution, friction) of {len(with_material)} body(ies), first "
-            f"bodies[{with_material[0]}], has no effect yet: this version detects "
-            f"collisions (with a collision block) but applies no collision response",)
+            f"bodies[{with_material[0]}], has no effect without a top-level collision "
+            f"block: nothing collides",)
 
 
 def _force_windows(scene: Scene, dt: float, n_steps: int, problems: list[Problem]) -> tuple:

@@ -39,6 +39,9 @@ class State:
     contacts: collision.Contacts found by loop stage 2.3 at this step (None: the scene
         has no collision block); an intermediate result like MuJoCo's mjData.contact,
         not part of the state hash
+    contact_impulse: (len(contacts), 3) N s, world: the impulse collision response gave
+        body_b at each contact during this step (body_a got minus it); None without
+        response. Also an intermediate result (it warm-starts the next step's solver)
     """
 
     step: int
@@ -59,6 +62,7 @@ class State:
     rot_energy0: np.ndarray | None = None  # (n_body,) J: the energy guard's baseline, once
     # windowed forces have ended (None: the model's energy at t = 0)
     contacts: object | None = None  # collision.Contacts of this step (stage 2.3)
+    contact_impulse: np.ndarray | None = None  # (k, 3) N s on body_b per contact (response)
 
     def replace(self, **changes) -> "State":
         return dataclasses.replace(self, **changes)

@@ -32,7 +32,11 @@ VRSIM_CONTACTS = {
             "properties": {"body_a": {"type": "string"}, "body_b": {"type": "string"},
                            "point": _NUMBERS3, "normal": _NUMBERS3,
                            "depth": {"type": "number"},
-                           "toi": {"type": ["number", "null"]}}}},
+                           "toi": {"type": ["number", "null"]},
+                           "impulse": {**_NUMBERS3, "description":
+                                       "N s, world: the impulse collision response gave "
+                                       "body_b at this contact during the step (body_a "
+                                       "got minus it); absent without a response"}}}},
     },
     "required": ["t", "step", "contacts"],
 }
@@ -65,11 +69,16 @@ def contacts_record(model, state) -> dict:
     """The vrsim.Contacts message of a state (body names, numbers as lists)."""
     c = state.contacts
     names = model.body_name
-    return {"t": float(state.t), "step": int(state.step), "contacts": [
+    record = {"t": float(state.t), "step": int(state.step), "contacts": [
         {"body_a": names[a], "body_b": names[b], "point": p, "normal": n, "depth": d,
          "toi": None if toi != toi else toi}
         for a, b, p, n, d, toi in zip(c.body_a.tolist(), c.body_b.tolist(), c.point.tolist(),
                                       c.normal.tolist(), c.depth.tolist(), c.toi.tolist())]}
+    impulse = getattr(state, "contact_impulse", None)
+    if impulse is not None:  # collision response: the impulse of each contact
+        for entry, j in zip(record["contacts"], impulse.tolist()):
+            entry["impulse"] = j
+    return record
 
 
 class ContactsChannel:

@@ -1,0 +1,129 @@
+"""Compile the collision response of a scene (slide 5.4.2) into frozen arrays.
+
+Layer 2 helper of `model.compile_model`, called only for scenes with a `collision` block.
+Per body: the response mode (`collision.response`) and the material (restitution eps,
+friction mu; NaN when the body does not set it). Per pair (`collision.pairs`): overrides.
+
+How two bodies combine (`combine`), as Box2D does and for the same reasons:
+- restitution: the larger of the two. A bouncy ball on a default (eps = 0) floor bounces
+  with its own eps, so setting one body's eps gives exactly that eps at the impact.
+- friction: the geometric mean sqrt(mu_A mu_B): ice (mu = 0) on anything is frictionless,
+  equal materials keep their value, and the result lies between the two.
+A value only one body sets is used as it is; neither: the defaults below. A pair entry
+replaces the combination for that pair.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+NONE, STOP, SLIDE, IMPULSE = range(4)
+MODES = ("none", "stop", "slide", "impulse")
+# When bodies disagree the more restrictive mode wins: none (a ghost), stop, slide, impulse.
+PRECEDENCE = (NONE, STOP, SLIDE, IMPULSE)
+DEFAULT_RESTITUTION = 0.0
+DEFAULT_FRICTION = 0.5
+DEFAULT_ITERATIONS = 4
+DEFAULT_POSITION_ITERATIONS = 2
+DEFAULT_SLOP = 0.0  # m: penetration left by position correction
+
+
+@dataclass(frozen=True)
+class ResponseModel:
+    """body_mode: (n_body,) int64 NONE | STOP | SLIDE | IMPULSE
+    body_restitution, body_friction: (n_body,) NaN where the body sets no material
+    pair_key: (p,) int64 a * n_body + b (a < b) of the pair overrides, sorted;
+    pair_mode: (p,) int64, -1 when not overridden; pair_restitution, pair_friction: (p,)
+    NaN when not overridden
+    rest_speed: m/s, impacts slower than this are plastic (eps = 0)
+    iterations, position_iterations: of the resting-contact solver; slop: m
+    """
+
+    body_mode: np.ndarray
+    body_restitution: np.ndarray
+    body_friction: np.ndarray
+    pair_key: np.ndarray
+    pair_mode: np.ndarray
+    pair_restitution: np.ndarray
+    pair_friction: np.ndarray
+    rest_speed: float
+    iterations: int
+    position_iterations: int
+    slop: float
+
+    def pair_values(self, a, b):
+        """(mode (k,) int64, restitution (k,), friction (k,)) of body pairs a < b."""
+        mode = np.minimum(self.body_mode[a], self.body_mode[b])  # PRECEDENCE order
+        ea, eb = self.body_restitution[a], self.body_restitution[b]
+        fa, fb = self.body_friction[a], self.body_friction[b]
+        eps = np.fmax(ea, eb)  # NaN only where both are unset
+        eps = np.where(np.isnan(eps), DEFAULT_RESTITUTION, eps)
+        mu = np.where(np.isnan(fa), fb, np.where(np.isnan(fb), fa, np.sqrt(fa * fb)))
+        mu = np.where(np.isnan(mu), DEFAULT_FRICTION, mu)
+        if len(self.pair_key) and len(a):
+            key = a * len(self.body_mode) + b
+            row = np.clip(np.searchsorted(self.pair_key, key), 0, len(self.pair_key) - 1)
+            hit = self.pair_key[row] == key
+            pm, pe, pf = self.pair_mode[row], self.pair_restitution[row], \
+                self.pair_friction[row]
+            mode = np.where(hit & (pm >= 0), pm, mode)
+            eps = np.where(hit & ~np.isnan(pe), pe, eps)
+            mu = np.where(hit & ~np.isnan(pf), pf, mu)
+        return mode, eps, mu
+
+
+def compile_response(scene, n_body: int, gravity, tolerance: float, problems: list) \
+        -> ResponseModel | None:
+    """The scene's response, or None when no pair can respond (all `none`)."""
+    data = scene.data
+    top = data.get("collision") or {}
+    default_mode = MODES.index(top.get("response", "impulse"))
+    mode = np.full(n_body, default_mode, np.int64)
+    eps = np.full(n_body, math.nan)
+    mu = np.full(n_body, math.nan)
+    bodies = data.get("bodies") or []
+    index = {b["name"]: i for i, b in enumerate(bodies)}
+    for i, body in enumerate(bodies):
+        spec = body.get("collision") or {}
+        if "response" in spec:
+            mode[i] = MODES.index(spec["response"])
+        material = body.get("material") or {}
+        eps[i] = float(material.get("restitution", math.nan))
+        mu[i] = float(material.get("friction", math.nan))
+    rows = {}
+    for k, pair in enumerate(top.get("pairs") or []):
+        at = ("collision", "pairs", k, "bodies")
+        names = pair["bodies"]
+        missing = [x for x in names if x not in index]
+        if missing:
+            problems.append(scene.problem(at, f"no body named '{missing[0]}'",
+                                          "pairs name two bodies of `bodies`"))
+            continue
+        a, b = sorted(index[x] for x in names)
+        if a == b:
+            problems.append(scene.problem(at, "a pair needs two different bodies"))
+            continue
+        rows[a * n_body + b] = (MODES.index(pair["response"]) if "response" in pair else -1,
+                                float(pair.get("restitution", math.nan)),
+                                float(pair.get("friction", math.nan)))
+    keys = sorted(rows)
+    if (mode == NONE).all() and all(rows[k][0] in (-1, NONE) for k in keys):
+        return None
+    g = float(np.linalg.norm(gravity))
+    # An impact slower than sqrt(2 |g| tol) would rebound less than the contact tolerance
+    # high: such a hop cannot be told apart from resting contact, so it is made plastic.
+    rest_speed = float(top.get("rest_speed", math.sqrt(2.0 * g * tolerance)))
+    return ResponseModel(
+        body_mode=mode, body_restitution=eps, body_friction=mu,
+        pair_key=np.array(keys, np.int64),
+        pair_mode=np.array([rows[k][0] for k in keys], np.int64),
+        pair_restitution=np.array([rows[k][1] for k in keys], float),
+        pair_friction=np.array([rows[k][2] for k in keys], float),
+        rest_speed=rest_speed,
+        iterations=int(top.get("iterations", DEFAULT_ITERATIONS)),
+        position_iterations=int(top.get("position_iterations", DEFAULT_POSITION_ITERATIONS)),
+        slop=float(top.get("slop", DEFAULT_SLOP)),
+    )
