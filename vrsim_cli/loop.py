@@ -155,68 +155,66 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
     start = clock()
     # Overflow and NaN are detected by check_state, which names the body and time;
     # numpy's own warnings would only add noise.
-    errstate = np.errstate(all="ignore")
-    errstate.__enter__()
     try:
-        for frame in range(state.step // model.steps_per_frame, model.n_frames):
-            if should_stop is not None and should_stop():
-                result.interrupted = True
-                break
-            t0 = clock()
-            inputs = sensors.read(model, frame, state.t)  # 1. read sensors
-            if inputs is not None and record_input is not None:
-                record_input(inputs)
-            t1 = clock()
-            profile["sensors"] += t1 - t0
-            frame_start = frame_end = state
-            if inputs is not None:  # 2.2 sensor-driven motion: the observer, once per frame
-                frame_end = navigation.step(model, state, inputs, frame_dt)
-                profile["navigation"] += clock() - t1
-            steps = min(model.steps_per_frame, model.n_steps - state.step)
-            if animate:  # keyframes and drives, read once per frame for its step times
+        with np.errstate(all="ignore"):
+            for frame in range(state.step // model.steps_per_frame, model.n_frames):
+                if should_stop is not None and should_stop():
+                    result.interrupted = True
+                    break
                 t0 = clock()
-                times = (state.step + 1 + np.arange(steps)) * model.dt
-                motion = scenegraph.local_motion(model, times)
-                profile["scenegraph"] += clock() - t0
-            for k in range(steps):
-                t0 = clock()
-                new = dynamics.step(model, state)  # 2.1 dynamic motion
+                inputs = sensors.read(model, frame, state.t)  # 1. read sensors
+                if inputs is not None and record_input is not None:
+                    record_input(inputs)
                 t1 = clock()
-                profile["dynamics"] += t1 - t0
-                if animate:  # 2.1 kinematic motion and 3. scene graph at the new time
-                    new = scenegraph.step(model, new, tuple(a[k] for a in motion))
-                    t2 = clock()
-                    profile["scenegraph"] += t2 - t1
-                    t1 = t2
-                if respond is not None:  # 2.3 collision: detection and response
-                    new = respond(model, state, new, dynamics.advance)
-                    t2 = clock()
-                    profile["collision"] += t2 - t1
-                    t1 = t2
-                check_state(model, new)
-                profile["checks"] += clock() - t1
-                if detect is not None:  # 2.3 collision: contacts (detection only)
+                profile["sensors"] += t1 - t0
+                frame_start = frame_end = state
+                if inputs is not None:  # 2.2 sensor-driven motion: the observer, once per frame
+                    frame_end = navigation.step(model, state, inputs, frame_dt)
+                    profile["navigation"] += clock() - t1
+                steps = min(model.steps_per_frame, model.n_steps - state.step)
+                if animate:  # keyframes and drives, read once per frame for its step times
+                    t0 = clock()
+                    times = (state.step + 1 + np.arange(steps)) * model.dt
+                    motion = scenegraph.local_motion(model, times)
+                    profile["scenegraph"] += clock() - t0
+                for k in range(steps):
+                    t0 = clock()
+                    new = dynamics.step(model, state)  # 2.1 dynamic motion
                     t1 = clock()
-                    new = new.replace(contacts=detect(model, state, new))
-                    profile["collision"] += clock() - t1
-                state = new
-                result.state = state
-                if state.step % every == 0:  # the observer only where a sample needs it
-                    sample(observer_at(state, k + 1))
-            if inputs is not None:  # the frame's end (or a run's last, partial frame)
-                state = result.state = observer_at(state, steps)
-            result.frames += 1
-            # 3. scene graph: already at this time (after each step); render
-            draw(state)
-            if realtime:
-                _pace(model, start, state, result)
-            if on_frame is not None:
-                on_frame(state)
+                    profile["dynamics"] += t1 - t0
+                    if animate:  # 2.1 kinematic motion and 3. scene graph at the new time
+                        new = scenegraph.step(model, new, tuple(a[k] for a in motion))
+                        t2 = clock()
+                        profile["scenegraph"] += t2 - t1
+                        t1 = t2
+                    if respond is not None:  # 2.3 collision: detection and response
+                        new = respond(model, state, new, dynamics.advance)
+                        t2 = clock()
+                        profile["collision"] += t2 - t1
+                        t1 = t2
+                    check_state(model, new)
+                    profile["checks"] += clock() - t1
+                    if detect is not None:  # 2.3 collision: contacts (detection only)
+                        t1 = clock()
+                        new = new.replace(contacts=detect(model, state, new))
+                        profile["collision"] += clock() - t1
+                    state = new
+                    result.state = state
+                    if state.step % every == 0:  # the observer only where a sample needs it
+                        sample(observer_at(state, k + 1))
+                if inputs is not None:  # the frame's end (or a run's last, partial frame)
+                    state = result.state = observer_at(state, steps)
+                result.frames += 1
+                # 3. scene graph: already at this time (after each step); render
+                draw(state)
+                if realtime:
+                    _pace(model, start, state, result)
+                if on_frame is not None:
+                    on_frame(state)
     except SimulationError:
         sample(result.state)  # keep the output up to the last good state
         raise
     finally:
-        errstate.__exit__(None, None, None)
         result.wall_s = clock() - start
     sample(state)
     return result
