@@ -170,7 +170,7 @@ def mesh_properties(path: str, scale: float, mass: float | None, density: float 
         import trimesh  # optional and heavy: only a mesh body with mass properties needs it
     except ImportError:  # pragma: no cover - trimesh is a dependency; a broken install
         raise MassPropertyError(("shape", "file"), "trimesh is needed for the mass "
-                                "properties of a mesh", "pip install 'vrsim-cli[mesh]'") \
+                                "properties of a mesh", "reinstall vrsim (trimesh is one of its dependencies)") \
             from None
     try:
         mesh = trimesh.load(path, force="mesh")
