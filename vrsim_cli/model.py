@@ -199,7 +199,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         vel0.append(_vec3(velocity or [0.0] * dim, dim) if kind != BODY_STATIC else [0.0] * 3)
         quat0.append(_orientation(body))
         colors.append(_color(body.get("color"), len(colors)))
-        shapes.append(_shape(body.get("shape"), dim))
+        shapes.append(_shape(body.get("shape"), dim, pos0[-1]))
         if shapes[-1] is not None and shapes[-1]["type"] == "mesh":
             shapes[-1]["path"] = _existing_file(scene, at + ("shape", "file"), problems)
         emit.append(0)
@@ -366,8 +366,10 @@ def _color(color, index: int) -> np.ndarray:
     return np.array(list(color) + [1.0] * (4 - len(color)), dtype=float)
 
 
-def _shape(shape: dict | None, dim: int) -> dict | None:
-    """The scene's shape with vectors made 3D and plane normals made unit length."""
+def _shape(shape: dict | None, dim: int, position=(0.0, 0.0, 0.0)) -> dict | None:
+    """The scene's shape with vectors made 3D and plane normals made unit length. A plane
+    passes through its body's position shifted by `offset` along the normal: {p : n.(p -
+    position) <= offset}, stored as the world-frame offset n.position + offset."""
     if shape is None:
         return None
     shape = dict(shape)
@@ -376,7 +378,8 @@ def _shape(shape: dict | None, dim: int) -> dict | None:
         shape["size"] = size if dim == 3 else size[:2] + [0.0]
     if shape["type"] == "plane":
         shape["normal"] = unit(_vec3(shape["normal"], dim)).tolist()
-        shape["offset"] = float(shape.get("offset", 0.0))
+        shape["offset"] = float(shape.get("offset", 0.0)) + \
+            float(np.dot(shape["normal"], position))
         shape["orientation"] = list(quat_rotating([0, 1, 0], shape["normal"]))
     return shape
 
