@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vrsim_cli.collision import solver
+from vrsim_cli.collision import jacobi, solver
 from vrsim_cli.collision.contacts import Contacts
 from vrsim_cli.collision.continuous import pair_distance, swept_contacts
 from vrsim_cli.collision.detect import broad_phase, narrow_phase, planar, to_contacts
@@ -315,6 +315,29 @@ def _warm_start(before, c: Contacts, model):
     return vec
 
 
+def _warm_start_keyed(before, c: Contacts, model):
+    """As `_warm_start`, matching by pair and rank within the pair instead of by distance
+    (linear in the number of contacts, for stepped impacts: a pair keeps its number of
+    contact points from step to step while it rests, and narrow phase orders them)."""
+    old, imp = before.contacts, before.contact_impulse
+    if old is None or imp is None or not len(old) or not len(c):
+        return None
+    keep = np.isnan(old.toi)
+
+    def keys(a, b):
+        pair = a * model.n_body + b  # contacts come sorted by pair
+        first = np.searchsorted(pair, pair, side="left")
+        return pair * 64 + np.minimum(np.arange(len(pair)) - first, 63)
+
+    key_old = keys(old.body_a[keep], old.body_b[keep])
+    key_new = keys(c.body_a, c.body_b)
+    row = np.clip(np.searchsorted(key_old, key_new), 0, max(len(key_old) - 1, 0))
+    if not len(key_old):
+        return None
+    hit = key_old[row] == key_new
+    return np.where(hit[:, None], imp[keep][row], 0.0)
+
+
 def resting(model, start, state, last=None, c=None):
     """Resting contact at the end of a step (`state`; `start`: the step's start, for warm
     starting; `last`: the state after the step's last impact, default `start`: a `stop`
@@ -346,16 +369,26 @@ def resting(model, start, state, last=None, c=None):
                     dpos[body] = np.where(np.abs(push) > np.abs(dpos[body]), push,
                                           dpos[body])
     rows = np.flatnonzero(mode == IMPULSE)
-    if len(rows):  # a gap closing fast is the next step's impact, located exactly then
+    stepped = rm.impacts == "stepped"
+    if len(rows) and not stepped:  # a gap closing fast is the next step's impact, located
         closing = (c.depth[rows] < 0.0) & (_approach(bodies, c, rows) < -rm.rest_speed)
         rows = rows[~closing]
     dtheta = np.zeros((model.n_body, 3))
     if len(rows):
-        cs = _contact_set(model, bodies, c, rows)
-        warm = _warm_start(start, Contacts(*(getattr(c, f)[rows] for f in (
-            "body_a", "body_b", "point", "normal", "depth", "toi"))), model)
-        impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm)
-        dp, dth = solver.correct_positions(bodies, cs, rm.slop, rm.position_iterations)
+        sub = Contacts(*(getattr(c, f)[rows] for f in (
+            "body_a", "body_b", "point", "normal", "depth", "toi")))
+        if stepped:  # impacts and rest in one parallel solve (restitution included)
+            system = jacobi.System(bodies, sub.body_a, sub.body_b, sub.point, sub.normal,
+                                   sub.depth)
+            _, eps, mu = rm.pair_values(sub.body_a, sub.body_b)
+            impulse[rows] = jacobi.solve(bodies, system, eps, mu, model.dt, rm.rest_speed,
+                                         rm.iterations, _warm_start_keyed(start, sub, model))
+            dp, dth = jacobi.correct_positions(system, rm.slop, rm.position_iterations)
+        else:
+            cs = _contact_set(model, bodies, c, rows)
+            warm = _warm_start(start, sub, model)
+            impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm)
+            dp, dth = solver.correct_positions(bodies, cs, rm.slop, rm.position_iterations)
         dpos += dp
         dtheta += dth
     if stopped.any():
@@ -397,7 +430,8 @@ def step(model, before, after, advance):
     # approaching and leaving. The end's contacts serve the impact search and, when no
     # impact cuts the step, the resting solver.
     c0, c_end = prev, detect(model, after)
-    for _ in range(MAX_EVENTS):
+    events = 0 if model.response.impacts == "stepped" else MAX_EVENTS
+    for _ in range(events):
         h = t_end - s.t
         if h <= 0.0:
             break
