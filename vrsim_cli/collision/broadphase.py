@@ -2,9 +2,10 @@
 
 Two vectorised methods (numpy, no Python loop over bodies), chosen by
 `collision.broad_phase` (benchmarks/collision_bench.py measures both, docs/benchmarks.md):
-- grid (default): a uniform hash grid with cells as large as the biggest ordinary box;
-  every box lands in at most 8 cells; pairs are formed within cells and kept only in the
-  cell that holds the lower corner of their overlap, so each pair appears once. O(n + k).
+- grid (default): a uniform grid with cells as large as the biggest ordinary box; every
+  box is filed in the cell of its centre and pairs with the boxes of its own cell and of
+  the 13 forward neighbour cells (binary search in the boxes sorted by cell), so each
+  pair appears once. O(n log n + k).
 - sap: sweep and prune along the axis of largest spread: sort the boxes' lower ends once,
   then each box pairs with the boxes starting before its upper end. O(n log n + k_axis).
 Infinite or unusually large boxes (planes, a ground slab) would blow up either method;
@@ -53,35 +54,44 @@ def sweep_and_prune(lo, hi):
     return np.minimum(i, j), np.maximum(i, j)
 
 
+# The 13 neighbour cells "after" a cell (half of its 26 neighbours): visiting only these
+# finds each pair of neighbouring cells once.
+_FORWARD = np.array([(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)
+                     if (x, y, z) > (0, 0, 0)], dtype=np.int64)
+
+
 def uniform_grid(lo, hi):
-    """Pairs (i, j) of overlapping boxes among lo, hi (n, 3), finite."""
+    """Pairs (i, j) of overlapping boxes among lo, hi (n, 3), finite.
+
+    Cells are as large as the biggest box, and each box is filed once, in the cell of its
+    centre: two overlapping boxes have centres closer than that size on every axis, so
+    their cells are the same or neighbours. Pairs come from each cell's own run of boxes
+    and from its 13 forward neighbours' runs, found all at once by binary search in the
+    boxes sorted by cell key."""
     n = len(lo)
     if n < 2:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     size = float((hi - lo).max())
     cell = size if size > 0.0 else 1.0
-    origin = lo.min(axis=0)
-    c_lo = np.floor((lo - origin) / cell).astype(np.int64)
-    c_hi = np.floor((hi - origin) / cell).astype(np.int64)  # c_hi - c_lo <= 1 per axis
-    corner = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)])
-    cells = c_lo[:, None, :] + corner[None]  # (n, 8, 3)
-    valid = np.all(cells <= c_hi[:, None, :], axis=2)
-    body = np.repeat(np.arange(n), 8)[valid.ravel()]
-    cells = cells.reshape(-1, 3)[valid.ravel()]
-    span = cells.max(axis=0) + 1
+    centre = 0.5 * (lo + hi)
+    c = np.floor((centre - centre.min(axis=0)) / cell).astype(np.int64) + 1  # -1 stays >= 0
+    span = c.max(axis=0) + 2
     if float(np.prod(span.astype(float))) >= 2.0 ** 62:  # too sparse to key: sort instead
         return sweep_and_prune(lo, hi)
-    key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
-    order = np.lexsort((body, key))
-    key, body, cells = key[order], body[order], cells[order]
-    run_end = np.searchsorted(key, key, side="right")
-    p, q = _pairs_in_runs(np.arange(len(key)), run_end)
-    i, j = body[p], body[q]
-    # Keep a pair only in the cell holding the lower corner of the two boxes' overlap
-    # (cheap integer test first, then the exact overlap on the survivors).
-    home = np.floor((np.maximum(lo[i], lo[j]) - origin) / cell).astype(np.int64)
-    once = np.all(home == cells[p], axis=1)
-    i, j = i[once], j[once]
+    key = (c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    p, q = _pairs_in_runs(np.arange(n), np.searchsorted(key, key, side="right"))
+    step = (_FORWARD[:, 0] * span[1] + _FORWARD[:, 1]) * span[2] + _FORWARD[:, 2]
+    wanted = (key[:, None] + step[None, :]).ravel()  # (n * 13,) neighbour cell keys
+    start = np.searchsorted(key, wanted, side="left")
+    count = np.searchsorted(key, wanted, side="right") - start
+    total = int(count.sum())
+    src = np.repeat(np.repeat(np.arange(n), len(step)), count)
+    dst = np.repeat(start, count) + np.arange(total) - np.repeat(np.cumsum(count) - count,
+                                                                    count)
+    i = order[np.concatenate([p, src])]
+    j = order[np.concatenate([q, dst])]
     keep = _overlap(lo, hi, i, j)
     i, j = i[keep], j[keep]
     return np.minimum(i, j), np.maximum(i, j)
@@ -109,14 +119,17 @@ def candidate_pairs(lo, hi, method: str = "grid"):
     small = np.flatnonzero(~large)
     si, sj = METHODS[method](lo[small], hi[small])
     parts_i, parts_j = [small[si]], [small[sj]]
-    for g in np.flatnonzero(large):  # each large box against every box
-        others = np.arange(n)
-        others = others[others != g]
-        hit = np.all((lo[others] <= hi[g]) & (lo[g] <= hi[others]), axis=1)
-        o = others[hit]
-        o = o[~large[o] | (o > g)]  # large-large pairs once
-        parts_i.append(np.minimum(o, g))
-        parts_j.append(np.maximum(o, g))
+    big = np.flatnonzero(large)
+    if len(big):  # each large box against every box, all at once: (n_large, n)
+        hit = np.ones((len(big), n), bool)
+        for axis in range(3):
+            hit &= (lo[None, :, axis] <= hi[big, None, axis]) & \
+                (lo[big, None, axis] <= hi[None, :, axis])
+        hit[np.arange(len(big)), big] = False
+        hit &= ~large[None, :] | (np.arange(n)[None, :] > big[:, None])  # large pairs once
+        g, o = np.nonzero(hit)
+        parts_i.append(np.minimum(o, big[g]))
+        parts_j.append(np.maximum(o, big[g]))
     i, j = np.concatenate(parts_i), np.concatenate(parts_j)
     order = np.lexsort((j, i))
     i, j = i[order], j[order]
