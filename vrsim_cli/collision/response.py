@@ -417,6 +417,9 @@ def step(model, before, after, advance):
     """One physics step with collision response. `after`: the free-flight step from
     `before` (dynamics and scene graph); `advance(model, state, h)`: the dynamics
     integrated over h <= dt from `state` (the loop passes `dynamics.advance`)."""
+    if model.response.impacts == "stepped":  # no impact is located: rest solves all
+        new, c, impulse = resting(model, before, after)
+        return new.replace(contacts=c, contact_impulse=impulse)
     prev = before.contacts if before.contacts is not None else detect(model, before)
     at_end = np.isnan(prev.toi)  # the impact rows are from earlier in the last step
     prev = Contacts(*(getattr(prev, f)[at_end] for f in (
@@ -430,8 +433,7 @@ def step(model, before, after, advance):
     # approaching and leaving. The end's contacts serve the impact search and, when no
     # impact cuts the step, the resting solver.
     c0, c_end = prev, detect(model, after)
-    events = 0 if model.response.impacts == "stepped" else MAX_EVENTS
-    for _ in range(events):
+    for _ in range(MAX_EVENTS):
         h = t_end - s.t
         if h <= 0.0:
             break
