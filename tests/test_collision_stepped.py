@@ -185,3 +185,12 @@ def test_stepped_runs_are_bit_identical():
     b = simulate(text)[2]
     assert a.body_pos.tobytes() == b.body_pos.tobytes()
     assert a.body_vel.tobytes() == b.body_vel.tobytes()
+
+
+def test_validate_says_which_impacts_a_scene_gets(invoke, tmp_path):
+    many, _ = box_of_spheres(AUTO_LOCATED_BODIES + 1, 0.1, impacts="auto")
+    path = tmp_path / "box.yaml"
+    path.write_text(many)
+    result = invoke("validate", path)
+    assert result.exit_code == 0
+    assert result.stdout.rstrip().endswith("symplectic-euler, stepped impacts)")

@@ -321,8 +321,10 @@ def validate(scene_files, quiet):
                 click.echo(f"error: {line}", err=True)
             continue
         if not quiet:
+            impacts = f", {model.response.impacts} impacts" if model.response else ""
             click.echo(f"{file}: ok ({model.n_body} bodies, {model.duration:g} s in "
-                       f"{model.n_steps} steps of {model.dt:.6g} s, {model.integrator})")
+                       f"{model.n_steps} steps of {model.dt:.6g} s, {model.integrator}"
+                       f"{impacts})")
             for note in model.notes:
                 click.echo(f"note: {file}: {note}", err=True)
     sys.exit(EXIT_INPUT if failed else 0)
