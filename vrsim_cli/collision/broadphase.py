@@ -21,11 +21,11 @@ LARGE_FACTOR = 8.0  # boxes larger than this many median sizes are tested agains
 
 
 def _overlap(lo, hi, i, j):
-    """(k,) bool: do boxes i and j (k,) overlap (touching counts)? Axis by axis, so
-    each comparison touches one column (3x less memory traffic than on (k, 3) rows)."""
-    keep = (lo[i, 0] <= hi[j, 0]) & (lo[j, 0] <= hi[i, 0])
-    for axis in (1, 2):
-        keep &= (lo[i, axis] <= hi[j, axis]) & (lo[j, axis] <= hi[i, axis])
+    """(k,) bool: do boxes i and j (k,) overlap (touching counts)? Axis by axis on
+    contiguous columns (`take` from a 1D column is 2-3 times faster than lo[i, axis])."""
+    keep = np.ones(len(i), bool)
+    for l, h in zip(np.ascontiguousarray(lo.T), np.ascontiguousarray(hi.T)):
+        keep &= (l.take(i) <= h.take(j)) & (l.take(j) <= h.take(i))
     return keep
 
 
