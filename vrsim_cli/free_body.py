@@ -1,0 +1,220 @@
+"""The exact flow of the torque-free rigid body (Euler-Poinsot motion), vectorised.
+
+Layer 0, beside `rotation`. `exact_free_rotation(moments, Rp, L, h)` returns the
+principal-frame orientations after time h of torque-free motion under a constant world
+angular momentum L, to round-off for any h (Jacobi 1849; Celledoni, Fasso, Safstrom &
+Zanna, SIAM J. Sci. Comput. 30(4), 2008; van Zon & Schofield, J. Comput. Phys. 225,
+2007). scipy.special is imported on the first call only (runs that never ask for the
+exact flow do not load scipy).
+
+The maths (docs/dynamics.md has the long form). Principal moments I1 <= I2 <= I3, body
+angular momentum m = Rp^T L (principal frame), G = |m|, 2T = sum m_i^2 / I_i.
+
+1. m(t), Jacobi. m circulates about the major axis 3 when G^2 > 2T I2 and about the
+   minor axis 1 otherwise. Label the circulated ("dn") axis c, the middle one b and the
+   remaining one a: (a, b, c) = (1, 2, 3) or (3, 2, 1). Then
+       m_a = sa A_a cn(u), m_b = sb A_b sn(u), m_c = sc A_c dn(u),  u = u0 + lam t,
+   with sc = sign(m_c), sa = sign(m_a), sb = sa sc (Euler's equations fix this sign
+   product in both regimes), and, written so that no difference of nearly equal numbers
+   is formed except the one that is the separatrix distance itself,
+       A_a^2 = m_a^2 + m_b^2 (I_c - I_b) I_a / (I_b (I_c - I_a))
+       A_b^2 = m_a^2 (I_c - I_a) I_b / (I_a (I_c - I_b)) + m_b^2
+       A_c^2 = m_b^2 (I_b - I_a) I_c / (I_b (I_c - I_a)) + m_c^2
+       lam^2 = (I_c - I_b) (I_c - I_a) A_c^2 / (I_a I_b I_c^2)
+       k^2   = (I_b - I_a) I_c A_a^2 / ((I_c - I_b) I_a A_c^2)
+   (each ratio of differences is positive in both regimes). u0 = F(phi0 | k^2) with
+   phi0 = atan2(m_b / (sb A_b), m_a / (sa A_a)) in [-pi/2, pi/2].
+
+2. Orientation. The world L is constant. With e = sc e_c (the circulated axis, on the
+   side m lies: e . m = |m_c| = A_c dn u > 0 always) let P(n) be the smallest rotation
+   taking e to n = m / G, P = E + [e x n]x + [e x n]x^2 / (1 + e . n) (regular, as
+   e . n >= 0). Then Rp(t) = U Rot_e(psi(t)) P(n(t))^T for a fixed U, and Rp(t) m(t) = L.
+   Rp^T Rp' = Omega* (Omega = I^-1 m) gives, after a line of vector algebra with
+   m' = m x Omega,
+       psi' = (2T + mu G / I_c) / (G + mu) = G / I_c + (2T - G^2/I_c) / (G + mu),
+   mu = A_c dn u. So over a step, Rp(h) = Rp(0) Q with
+       Q = P(n0) Rot_e(dpsi) P(n1)^T,
+       dpsi = h G / I_c + (2T - G^2 / I_c) int_0^h dt / (G + A_c dn(u0 + lam t)).
+   The integrand is periodic in u (period 2K) and analytic in the strip |Im u| < K'
+   (K' >= pi/2: dn has its poles at +-i K', and G + A_c dn u vanishes only where
+   dn is real and <= -1, at |Im u| > K'). Whole periods are counted once (the integral
+   over one period times their number) and the rest is integrated by composite
+   Gauss-Legendre quadrature on panels at most 1 long in u: in the strip of half-width
+   pi/2 the error of n nodes falls like rho^(-2n) with rho = d/L + sqrt(1 + (d/L)^2)
+   (Trefethen, Approximation Theory and Approximation Practice, thm 19.3), and n is
+   picked for rho^(-2n) < 1e-20, so the quadrature error is below round-off. This is the
+   elliptic integral of the third kind of Celledoni et al. (their Pi(n; phi | k)),
+   evaluated by quadrature instead of Carlson's R_J: near rotation about a principal
+   axis the Pi form subtracts two nearly equal large terms, the quadrature does not.
+
+Cases: a body with equal extreme moments (spherical, and every 2D body, whose tensor is
+Izz E) or whose m is exactly along a principal axis (a steady rotation, also about the
+unstable middle axis) turns about the fixed m at Omega: Q = exp(h Omega*). Symmetric
+bodies (I1 = I2 or I2 = I3) get k = 0 (cn, sn = cos, sin: regular precession).
+G = 0 gives Q = E. On the separatrix (k = 1) the period is infinite and dn = sech.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from vrsim_cli.rotation import axis_rotation, exp_so3, skew
+
+# Strip half-width (in u) in which the psi integrand is analytic, with a margin: the
+# nearest singularity is at distance K' >= pi/2.
+_STRIP = 0.8 * (0.5 * math.pi)
+_PANEL = 1.0  # longest quadrature panel in u
+_QUAD_EXPONENT = 20.0  # rho^(-2n) < 10^-20: the quadrature error is far below round-off
+_GAUSS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _gauss(n: int):
+    """Gauss-Legendre nodes on [0, 1] and weights summing to 1, cached."""
+    if n not in _GAUSS:
+        x, w = np.polynomial.legendre.leggauss(n)
+        _GAUSS[n] = (0.5 * (x + 1.0), 0.5 * w)
+    return _GAUSS[n]
+
+
+def _nodes_for(half_length: float) -> int:
+    ratio = _STRIP / max(half_length, 1e-300)
+    rho = ratio + math.sqrt(1.0 + ratio * ratio)
+    return max(2, math.ceil(_QUAD_EXPONENT * math.log(10.0) / (2.0 * math.log(rho))))
+
+
+def _smallest_rotation(e: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(k, 3) unit vectors with e . n >= 0 -> (k, 3, 3) the rotations about e x n taking
+    e to n: E + K + K^2 / (1 + e . n), K = [e x n]x (Rodrigues with sin = |e x n|,
+    1 - cos = |e x n|^2 / (1 + cos))."""
+    K = skew(np.cross(e, n))
+    c = (e * n).sum(-1)
+    return np.eye(3) + K + (K @ K) / (1.0 + c)[:, None, None]
+
+
+def _psi_integral(special, u0, lam, h, G, A, k2, kc2):
+    """int_0^h dt / (G + A dn(u0 + lam t | k2)), (k,) arrays, by whole periods plus
+    composite Gauss-Legendre quadrature of the rest (module docstring)."""
+    du = lam * h
+    out = np.zeros_like(u0)
+    # Whole periods 2K (K >= pi/2, so a step shorter than pi in u has none).
+    periods = np.zeros_like(u0)
+    long = du >= math.pi
+    if long.any():
+        K = special.ellipk(k2[long])  # inf on the separatrix: no whole period
+        periods[long] = np.floor(du[long] / (2.0 * K))
+        with_periods = periods > 0
+        if with_periods.any():
+            sel = np.nonzero(with_periods)[0]
+            Ks = special.ellipk(k2[sel])
+            one = _quadrature(special, np.zeros(len(sel)), 2.0 * Ks, G[sel], A[sel],
+                              k2[sel], kc2[sel])
+            out[sel] = periods[sel] * one / lam[sel]
+            du = du.copy()
+            du[sel] = du[sel] - periods[sel] * 2.0 * Ks
+    moving = lam > 0
+    rest = np.where(moving, _quadrature(special, u0, du, G, A, k2, kc2) /
+                    np.where(moving, lam, 1.0), h / (G + A * _dn(special, u0, k2, kc2)))
+    return out + rest
+
+
+def _dn(special, u, k2, kc2):
+    dn = special.ellipj(u, k2)[2]
+    # On the separatrix (k = 1) scipy gives dn = sech u; elsewhere dn >= k' > 0.
+    return np.maximum(dn, np.sqrt(kc2))
+
+
+def _quadrature(special, start, length, G, A, k2, kc2):
+    """(k,) int_start^(start + length) du / (G + A dn u) on equal panels <= _PANEL."""
+    panels = max(1, math.ceil(float(length.max(initial=0.0)) / _PANEL))
+    width = length / panels  # (k,)
+    x, w = _gauss(_nodes_for(0.5 * float(width.max(initial=0.0))))
+    offsets = (np.arange(panels)[:, None] + x[None, :]).ravel()  # (panels * nodes,)
+    u = start[:, None] + width[:, None] * offsets[None, :]
+    dn = _dn(special, u, k2[:, None], kc2[:, None])
+    f = 1.0 / (G[:, None] + A[:, None] * dn)
+    return width * (f.reshape(len(start), panels, len(x)) @ w).sum(-1)
+
+
+def exact_free_rotation(moments: np.ndarray, Rp: np.ndarray, L: np.ndarray,
+                        h: float) -> np.ndarray:
+    """Principal-frame orientations after time h of torque-free motion.
+
+    moments: (k, 3) kg m^2 principal moments, ascending; Rp: (k, 3, 3) principal frame ->
+    world; L: (k, 3) kg m^2/s world angular momentum (constant); h: s (any sign).
+    Returns (k, 3, 3) Rp(h) with Rp(h) (Rp(h)^T L) = L and Rp(h)^T L the Jacobi solution.
+    """
+    m = (L[:, None, :] @ Rp)[:, 0, :]  # (Rp^T L)^T
+    Q = np.broadcast_to(np.eye(3), Rp.shape).copy()
+    G = np.linalg.norm(m, axis=-1)
+    I1, I2, I3 = moments[:, 0], moments[:, 1], moments[:, 2]
+    omega = m / moments
+    axial = (np.count_nonzero(m, axis=-1) <= 1)  # m along a principal axis: steady
+    round_ = (I3 - I1) <= 1e-12 * I3  # spherical (also every 2D body): Omega || m
+    steady = (G > 0) & (axial | round_)
+    if steady.any():
+        Q[steady] = exp_so3(h * omega[steady])
+    gen = np.nonzero((G > 0) & ~steady)[0]
+    if len(gen):
+        Q[gen] = _jacobi_step(moments[gen], m[gen], G[gen], h)
+    return Rp @ Q
+
+
+def _jacobi_step(moments, m, G, h):
+    """(k, 3, 3) body rotations Q, Rp(h) = Rp(0) Q, for bodies off the steady cases."""
+    from scipy import special
+
+    I1, I2, I3 = moments[:, 0], moments[:, 1], moments[:, 2]
+    # G^2 - 2T I2, the separatrix distance, from m directly (the only cancellation).
+    sep = m[:, 0] ** 2 * (I1 - I2) / I1 + m[:, 2] ** 2 * (I3 - I2) / I3
+    # Ties (sep == 0): a symmetric body is labelled so that I_b = I_a (k = 0); otherwise
+    # it is the separatrix, where both labellings are the same motion.
+    major = (sep > 0) | ((sep == 0) & (I3 > I2))
+    order = np.where(major[:, None], [0, 1, 2], [2, 1, 0])  # (a, b, c) per body
+    rows = np.arange(len(m))[:, None]
+    Ia, Ib, Ic = moments[rows, order].T
+    ma, mb, mc = m[rows, order].T
+    dca, dcb, dba = Ic - Ia, Ic - Ib, Ib - Ia  # all >= 0 (major) or all <= 0: ratios >= 0
+    Aa2 = ma ** 2 + mb ** 2 * _ratio(dcb * Ia, Ib * dca)
+    Ab2 = ma ** 2 * _ratio(dca * Ib, Ia * dcb) + mb ** 2
+    Ac2 = mb ** 2 * _ratio(dba * Ic, Ib * dca) + mc ** 2
+    lam = np.sqrt(np.maximum(dcb * dca, 0.0) * Ac2 / (Ia * Ib * Ic * Ic))
+    k2 = np.clip(_ratio(dba * Ic * Aa2, dcb * Ia * Ac2), 0.0, 1.0)
+    # k'^2 = 1 - k^2 = I_c (G^2 - 2T I_b) / ((I_c - I_b) A_c^2) (the m_b^2 terms cancel
+    # exactly): from the separatrix distance itself, so that k'^2 keeps its relative
+    # accuracy next to the separatrix, where dn >= k' matters.
+    kc2 = np.clip(_ratio(Ic * sep, dcb * Ac2), 0.0, 1.0)
+    sc = np.where(mc < 0, -1.0, 1.0)
+    sa = np.where(ma < 0, -1.0, 1.0)
+    sb = sa * sc
+    Aa, Ab, Ac = np.sqrt(Aa2), np.sqrt(Ab2), np.sqrt(Ac2)
+    cos0 = np.clip(_ratio(ma * sa, Aa), 0.0, 1.0)
+    sin0 = np.clip(_ratio(mb * sb, Ab), -1.0, 1.0)
+    phi0 = np.arctan2(sin0, cos0)  # in [-pi/2, pi/2]
+    u0 = special.ellipkinc(phi0, k2)
+    u1 = u0 + lam * h
+    sn, cn, dn, _ = special.ellipj(u1, k2)
+    dn = np.maximum(dn, np.sqrt(kc2))
+    m1 = np.empty_like(m)
+    m1[rows[:, 0], order[:, 0]] = sa * Aa * cn
+    m1[rows[:, 0], order[:, 1]] = sb * Ab * sn
+    m1[rows[:, 0], order[:, 2]] = sc * Ac * dn
+    # psi: rate G/I_c plus (2T - G^2/I_c) / (G + A_c dn u), 2T - G^2/I_c without cancellation.
+    excess = ma ** 2 * (1.0 / Ia - 1.0 / Ic) + mb ** 2 * (1.0 / Ib - 1.0 / Ic)
+    dpsi = h * G / Ic + excess * _psi_integral(special, u0, lam, h, G, Ac, k2, kc2)
+    e = np.zeros_like(m)
+    e[rows[:, 0], order[:, 2]] = sc
+    P0 = _smallest_rotation(e, m / G[:, None])
+    P1 = _smallest_rotation(e, m1 / np.linalg.norm(m1, axis=-1, keepdims=True))
+    turn = np.empty((len(m), 3, 3))
+    for axis in (0, 2):  # rotation about e = sc e_c by dpsi
+        pick = order[:, 2] == axis
+        if pick.any():
+            turn[pick] = axis_rotation(axis, sc[pick] * dpsi[pick])
+    return P0 @ turn @ np.swapaxes(P1, -1, -2)
+
+
+def _ratio(num, den):
+    """num / den, 0 where den == 0 (a symmetric body's vanishing difference)."""
+    return np.divide(num, den, out=np.zeros(np.broadcast(num, den).shape), where=den != 0)
