@@ -19,6 +19,9 @@ Integrators (docs/dynamics.md has the table with orders and costs):
   time-reversible. Free rotation: |L| and R's orthonormality are kept exactly (each
   sub-step is an exact rotation; McLachlan 1993, Touma & Wisdom 1994, Dullweber,
   Leimkuhler & McLachlan 1997) and the energy error stays bounded (no drift).
+- `rotation: {free_flow: exact}` replaces the drift of both by the exact torque-free flow
+  (`free_body.py`; Celledoni, Fasso, Safstrom & Zanna 2008): a body without torque is
+  then exact to round-off at any dt, and with torques the kicks carry them.
 - rk4: classical Runge-Kutta on (S, v, R, L) with R' = omega* R, then polar
   re-orthonormalisation. Order 4.
 - dopri5: Dormand-Prince 5(4) on the same system with error control (`adaptive.py`),
@@ -36,6 +39,7 @@ import numpy as np
 
 from vrsim_cli import adaptive
 from vrsim_cli.errors import SimulationError
+from vrsim_cli.free_body import exact_free_rotation
 from vrsim_cli.model import Model
 from vrsim_cli.rigid_model import (RigidModel, angular_velocity, mechanical_energy,
                                    spring_ends)
@@ -152,13 +156,19 @@ def _finish_rotation(model: Model, R):
 
 
 def free_rotation(rigid: RigidModel, R, L, h: float, strang: bool):
-    """R after time h of torque-free motion with constant world L, by splitting the kinetic
+    """R after time h of torque-free motion with constant world L.
+
+    `rotation: {free_flow: exact}`: the exact flow (Jacobi's solution, `free_body.py`),
+    to round-off at any h. Otherwise (`splitting`, the default) by splitting the kinetic
     energy sum_i Lb_i^2 / (2 I_i) (principal body frame) into its three terms: each term's
     flow is an exact rotation of the body about principal axis i by h Lb_i / I_i
     (Lb_i is constant under it). Lie-Trotter (1, 2, 3) is order 1; Strang (1, 2, 3, 2, 1
     with half steps outside) is order 2. (Kinematic bodies are turned exactly by `step`.)"""
     Q = rigid.rot_axes
     Rp = R @ Q  # principal frame -> world
+    if rigid.free_flow == "exact":
+        # Kinematic bodies have L = 0 here: they stay put (`step` turns them).
+        return exact_free_rotation(rigid.rot_moments, Rp, L, h) @ np.swapaxes(Q, -1, -2)
     Lb = L[:, None, :] @ Rp  # (r, 1, 3): (Rp^T L)^T, a row per body
     rates = np.where(rigid.rot_kinematic[:, None], 0.0, 1.0 / rigid.rot_moments)
     plan = [(0, 0.5 * h), (1, 0.5 * h), (2, h), (1, 0.5 * h), (0, 0.5 * h)] if strang \

@@ -22,6 +22,8 @@ from vrsim_cli.spatial import quat_to_matrix
 ADAPTIVE = ("dopri5",)
 BODY_KINEMATIC = 1  # model.BODY_KINEMATIC (model imports this module)
 DEFAULT_TOLERANCE = 1e-6
+DEFAULT_FREE_FLOW = "splitting"
+SPLITTING = ("symplectic-euler", "verlet")  # the integrators with a free-rotation drift
 
 
 @dataclass(frozen=True)
@@ -89,6 +91,9 @@ class RigidModel:
     # s: the guard watches the energy from this time on (0: from the start; when windowed
     # forces or torques act, from the end of the last window, against the energy then).
     energy_guard_from: float = 0.0
+    # The free-rotation drift of symplectic-euler and verlet: "splitting" (exact rotations
+    # about the principal axes) or "exact" (the exact torque-free flow, `free_body.py`).
+    free_flow: str = "splitting"
 
     @property
     def n_rot(self) -> int:
@@ -113,11 +118,16 @@ def _about_z(value, dim: int) -> list[float]:
 
 def rigid_notes(data: dict) -> tuple:
     """Valid keys that have no effect in this scene, said out loud."""
-    if "tolerance" in data and data.get("integrator") not in ADAPTIVE:
-        return (f"tolerance has no effect with integrator "
-                f"{data.get('integrator', 'symplectic-euler')}: it is for dopri5, which "
-                f"chooses its own steps",)
-    return ()
+    integrator = data.get("integrator", "symplectic-euler")
+    notes = []
+    if "tolerance" in data and integrator not in ADAPTIVE:
+        notes.append(f"tolerance has no effect with integrator {integrator}: it is for "
+                     f"dopri5, which chooses its own steps")
+    free_flow = (data.get("rotation") or {}).get("free_flow", DEFAULT_FREE_FLOW)
+    if free_flow != DEFAULT_FREE_FLOW and integrator not in SPLITTING:
+        notes.append(f"rotation.free_flow: {free_flow} has no effect with integrator "
+                     f"{integrator}: it is the drift of symplectic-euler and verlet")
+    return tuple(notes)
 
 
 def needs_rigid(data: dict) -> bool:
@@ -278,6 +288,7 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
         energy_guard_from=guard_from if guard else 0.0,
         mass_properties=tuple(props_all),
         static_forces=static_forces,
+        free_flow=str((data.get("rotation") or {}).get("free_flow", DEFAULT_FREE_FLOW)),
     )
     if not guard or problems:
         return rigid
