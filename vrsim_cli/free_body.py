@@ -22,8 +22,8 @@ angular momentum m = Rp^T L (principal frame), G = |m|, 2T = sum m_i^2 / I_i.
        A_c^2 = m_b^2 (I_b - I_a) I_c / (I_b (I_c - I_a)) + m_c^2
        lam^2 = (I_c - I_b) (I_c - I_a) A_c^2 / (I_a I_b I_c^2)
        k^2   = (I_b - I_a) I_c A_a^2 / ((I_c - I_b) I_a A_c^2)
-   (each ratio of differences is positive in both regimes). u0 = F(phi0 | k^2) with
-   phi0 = atan2(m_b / (sb A_b), m_a / (sa A_a)) in [-pi/2, pi/2].
+   (each ratio of differences is positive in both regimes); the phase u0 = F(phi0 | k^2)
+   = sn0 R_F(cn0^2, dn0^2, 1) (Carlson's R_F) with cn0, sn0, dn0 read off m.
 
 2. Orientation. The world L is constant. With e = sc e_c (the circulated axis, on the
    side m lies: e . m = |m_c| = A_c dn u > 0 always) let P(n) be the smallest rotation
@@ -96,43 +96,62 @@ def _smallest_rotation(e: np.ndarray, n: np.ndarray) -> np.ndarray:
 def _psi_integral(special, u0, lam, h, G, A, k2, kc2):
     """int_0^h dt / (G + A dn(u0 + lam t | k2)), (k,) arrays, by whole periods plus
     composite Gauss-Legendre quadrature of the rest (module docstring)."""
-    du = lam * h
+    du = lam * h  # the sign of h
     out = np.zeros_like(u0)
     # Whole periods 2K (K >= pi/2, so a step shorter than pi in u has none).
     periods = np.zeros_like(u0)
-    long = du >= math.pi
+    long = np.abs(du) >= math.pi
     if long.any():
-        K = special.ellipk(k2[long])  # inf on the separatrix: no whole period
-        periods[long] = np.floor(du[long] / (2.0 * K))
-        with_periods = periods > 0
+        K = special.ellipkm1(kc2[long])  # K(1 - kc2); inf on the separatrix
+        periods[long] = np.trunc(du[long] / (2.0 * K))
+        with_periods = periods != 0
         if with_periods.any():
             sel = np.nonzero(with_periods)[0]
-            Ks = special.ellipk(k2[sel])
-            one = _quadrature(special, np.zeros(len(sel)), 2.0 * Ks, G[sel], A[sel],
+            Ks = special.ellipkm1(kc2[sel])
+            one = _quadrature(np.zeros(len(sel)), 2.0 * Ks, G[sel], A[sel],
                               k2[sel], kc2[sel])
             out[sel] = periods[sel] * one / lam[sel]
             du = du.copy()
             du[sel] = du[sel] - periods[sel] * 2.0 * Ks
     moving = lam > 0
-    rest = np.where(moving, _quadrature(special, u0, du, G, A, k2, kc2) /
-                    np.where(moving, lam, 1.0), h / (G + A * _dn(special, u0, k2, kc2)))
+    rest = np.where(moving, _quadrature(u0, du, G, A, k2, kc2) /
+                    np.where(moving, lam, 1.0), h / (G + A * jacobi(u0, k2, kc2)[2]))
     return out + rest
 
 
-def _dn(special, u, k2, kc2):
-    dn = special.ellipj(u, k2)[2]
-    # On the separatrix (k = 1) scipy gives dn = sech u; elsewhere dn >= k' > 0.
-    return np.maximum(dn, np.sqrt(kc2))
+def jacobi(u, k2, kc2):
+    """(sn, cn, dn)(u | k^2) by the arithmetic-geometric mean (Abramowitz & Stegun 16.4),
+    given both k^2 and k'^2 = 1 - k^2 (arrays that broadcast with u).
+
+    scipy.special.ellipj takes k^2 alone and forms 1 - k^2 itself: next to the separatrix
+    (k'^2 ~ 1e-12 for a body spun 1e-6 off its middle axis) that keeps only a few digits of
+    k'^2, and the period K ~ ln(4 / k') with them. Here the AGM starts from b0 = k'
+    exactly. dn = sqrt(k'^2 + k^2 cn^2) adds two positive terms (no cancellation where
+    dn is tiny, and no 0/0 of the textbook cos(phi0) / cos(phi1 - phi0))."""
+    a, c = np.ones_like(kc2), np.sqrt(k2)
+    b = np.sqrt(kc2)
+    ratios = []
+    # Quadratic convergence: ~6 rounds for k' >= 1e-30, 1 for k = 0; 16 for any double.
+    while not ratios or (np.any(np.abs(c) > 1e-17 * a) and len(ratios) < 16):
+        a, b, c = 0.5 * (a + b), np.sqrt(a * b), 0.5 * (a - b)
+        ratios.append(c / a)
+    phi = (2.0 ** len(ratios)) * a * u
+    for ratio in reversed(ratios):
+        phi = 0.5 * (phi + np.arcsin(ratio * np.sin(phi)))
+    cn = np.cos(phi)
+    return np.sin(phi), cn, np.sqrt(kc2 + k2 * cn * cn)
 
 
-def _quadrature(special, start, length, G, A, k2, kc2):
-    """(k,) int_start^(start + length) du / (G + A dn u) on equal panels <= _PANEL."""
-    panels = max(1, math.ceil(float(length.max(initial=0.0)) / _PANEL))
+def _quadrature(start, length, G, A, k2, kc2):
+    """(k,) int_start^(start + length) du / (G + A dn u) on equal panels, each at most
+    _PANEL long (length < 0: backwards, a negative integral)."""
+    longest = float(np.abs(length).max(initial=0.0))
+    panels = max(1, math.ceil(longest / _PANEL))
     width = length / panels  # (k,)
-    x, w = _gauss(_nodes_for(0.5 * float(width.max(initial=0.0))))
+    x, w = _gauss(_nodes_for(0.5 * longest / panels))
     offsets = (np.arange(panels)[:, None] + x[None, :]).ravel()  # (panels * nodes,)
     u = start[:, None] + width[:, None] * offsets[None, :]
-    dn = _dn(special, u, k2[:, None], kc2[:, None])
+    dn = jacobi(u, k2[:, None], kc2[:, None])[2]
     f = 1.0 / (G[:, None] + A[:, None] * dn)
     return width * (f.reshape(len(start), panels, len(x)) @ w).sum(-1)
 
@@ -185,17 +204,20 @@ def _jacobi_step(moments, m, G, h):
     # exactly): from the separatrix distance itself, so that k'^2 keeps its relative
     # accuracy next to the separatrix, where dn >= k' matters.
     kc2 = np.clip(_ratio(Ic * sep, dcb * Ac2), 0.0, 1.0)
+    k2, kc2 = np.where(kc2 < 0.5, 1.0 - kc2, k2), np.where(kc2 < 0.5, kc2, 1.0 - k2)
     sc = np.where(mc < 0, -1.0, 1.0)
     sa = np.where(ma < 0, -1.0, 1.0)
     sb = sa * sc
     Aa, Ab, Ac = np.sqrt(Aa2), np.sqrt(Ab2), np.sqrt(Ac2)
-    cos0 = np.clip(_ratio(ma * sa, Aa), 0.0, 1.0)
-    sin0 = np.clip(_ratio(mb * sb, Ab), -1.0, 1.0)
-    phi0 = np.arctan2(sin0, cos0)  # in [-pi/2, pi/2]
-    u0 = special.ellipkinc(phi0, k2)
+    # u0 = F(phi0 | k^2) = sn R_F(cn^2, dn^2, 1) (Carlson; |phi0| <= pi/2 as cn0 >= 0),
+    # from cn0, sn0, dn0 read off m: no amplitude angle, whose rounding next to pi/2 (m
+    # close to the unstable axis) would make u0 infinite.
+    cn0 = np.clip(_ratio(ma * sa, Aa), 0.0, 1.0)
+    sn0 = np.clip(_ratio(mb * sb, Ab), -1.0, 1.0)
+    dn0 = np.clip(_ratio(mc * sc, Ac), 0.0, 1.0)
+    u0 = sn0 * special.elliprf(cn0 * cn0, dn0 * dn0, 1.0)
     u1 = u0 + lam * h
-    sn, cn, dn, _ = special.ellipj(u1, k2)
-    dn = np.maximum(dn, np.sqrt(kc2))
+    sn, cn, dn = jacobi(u1, k2, kc2)
     m1 = np.empty_like(m)
     m1[rows[:, 0], order[:, 0]] = sa * Aa * cn
     m1[rows[:, 0], order[:, 1]] = sb * Ab * sn
