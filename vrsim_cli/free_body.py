@@ -60,7 +60,7 @@ import math
 
 import numpy as np
 
-from vrsim_cli.rotation import axis_rotation, exp_so3, skew
+from vrsim_cli.rotation import cross, exp_so3, skew
 
 # Strip half-width (in u) in which the psi integrand is analytic, with a margin: the
 # nearest singularity is at distance K' >= pi/2.
@@ -88,46 +88,48 @@ def _smallest_rotation(e: np.ndarray, n: np.ndarray) -> np.ndarray:
     """(k, 3) unit vectors with e . n >= 0 -> (k, 3, 3) the rotations about e x n taking
     e to n: E + K + K^2 / (1 + e . n), K = [e x n]x (Rodrigues with sin = |e x n|,
     1 - cos = |e x n|^2 / (1 + cos))."""
-    K = skew(np.cross(e, n))
+    K = skew(cross(e, n))
     c = (e * n).sum(-1)
     return np.eye(3) + K + (K @ K) / (1.0 + c)[:, None, None]
 
 
-def _psi_integral(special, u0, lam, h, G, A, k2, kc2):
-    """int_0^h dt / (G + A dn(u0 + lam t | k2)), (k,) arrays, by whole periods plus
-    composite Gauss-Legendre quadrature of the rest (module docstring)."""
-    du = lam * h  # the sign of h
-    out = np.zeros_like(u0)
-    # Whole periods 2K (K >= pi/2, so a step shorter than pi in u has none).
-    periods = np.zeros_like(u0)
+def _whole_periods(special, u0, du, lam, G, A, k2, kc2):
+    """Split du = lam h into whole periods 2K of the psi integrand and a rest (module
+    docstring): returns (the integral over the whole periods, in t, (k,); the rest of du,
+    (k,), |rest| < 2K). K >= pi/2, so a step shorter than pi in u has no whole period."""
+    whole = np.zeros_like(u0)
     long = np.abs(du) >= math.pi
-    if long.any():
-        K = special.ellipkm1(kc2[long])  # K(1 - kc2); inf on the separatrix
-        periods[long] = np.trunc(du[long] / (2.0 * K))
-        with_periods = periods != 0
-        if with_periods.any():
-            sel = np.nonzero(with_periods)[0]
-            Ks = special.ellipkm1(kc2[sel])
-            one = _quadrature(np.zeros(len(sel)), 2.0 * Ks, G[sel], A[sel],
-                              k2[sel], kc2[sel])
-            out[sel] = periods[sel] * one / lam[sel]
-            du = du.copy()
-            du[sel] = du[sel] - periods[sel] * 2.0 * Ks
-    moving = lam > 0
-    rest = np.where(moving, _quadrature(u0, du, G, A, k2, kc2) /
-                    np.where(moving, lam, 1.0), h / (G + A * jacobi(u0, k2, kc2)[2]))
-    return out + rest
+    if not long.any():
+        return whole, du
+    periods = np.zeros_like(u0)
+    K = np.full_like(u0, np.inf)
+    K[long] = special.ellipkm1(kc2[long])  # K(1 - kc2), exact from kc2; inf on the separatrix
+    periods[long] = np.trunc(du[long] / (2.0 * K[long]))
+    sel = np.nonzero(periods != 0)[0]
+    if len(sel):
+        nodes, weights = _panels(np.zeros(len(sel)), 2.0 * K[sel])
+        dn = jacobi(nodes, k2[sel], kc2[sel])[2]
+        one = (weights / (G[sel, None] + A[sel, None] * dn)).sum(1)
+        whole[sel] = periods[sel] * one / lam[sel]
+        du = du.copy()
+        du[sel] -= periods[sel] * 2.0 * K[sel]
+    return whole, du
 
 
-def jacobi(u, k2, kc2):
-    """(sn, cn, dn)(u | k^2) by the arithmetic-geometric mean (Abramowitz & Stegun 16.4),
-    given both k^2 and k'^2 = 1 - k^2 (arrays that broadcast with u).
+def _panels(start, length):
+    """Composite Gauss-Legendre rule for int_start^(start + length) du on equal panels,
+    each at most _PANEL long (length < 0: backwards): (nodes (k, q), weights (k, q))."""
+    longest = float(np.abs(length).max(initial=0.0))
+    panels = max(1, math.ceil(longest / _PANEL))
+    width = length / panels  # (k,)
+    x, w = _gauss(_nodes_for(0.5 * longest / panels))
+    offsets = (np.arange(panels)[:, None] + x[None, :]).ravel()  # (panels * nodes,)
+    return start[:, None] + width[:, None] * offsets, width[:, None] * np.tile(w, panels)
 
-    scipy.special.ellipj takes k^2 alone and forms 1 - k^2 itself: next to the separatrix
-    (k'^2 ~ 1e-12 for a body spun 1e-6 off its middle axis) that keeps only a few digits of
-    k'^2, and the period K ~ ln(4 / k') with them. Here the AGM starts from b0 = k'
-    exactly. dn = sqrt(k'^2 + k^2 cn^2) adds two positive terms (no cancellation where
-    dn is tiny, and no 0/0 of the textbook cos(phi0) / cos(phi1 - phi0))."""
+
+def _agm(k2, kc2):
+    """The arithmetic-geometric mean of (1, k') for `jacobi`: (2^N a_N (k,), the ratios
+    c_n / a_n, n = 1..N, (N, k))."""
     a, c = np.ones_like(kc2), np.sqrt(k2)
     b = np.sqrt(kc2)
     ratios = []
@@ -135,25 +137,25 @@ def jacobi(u, k2, kc2):
     while not ratios or (np.any(np.abs(c) > 1e-17 * a) and len(ratios) < 16):
         a, b, c = 0.5 * (a + b), np.sqrt(a * b), 0.5 * (a - b)
         ratios.append(c / a)
-    phi = (2.0 ** len(ratios)) * a * u
-    for ratio in reversed(ratios):
-        phi = 0.5 * (phi + np.arcsin(ratio * np.sin(phi)))
+    return (2.0 ** len(ratios)) * a, np.array(ratios)
+
+
+def jacobi(u, k2, kc2, agm=None):
+    """(sn, cn, dn)(u | k^2), u: (k, q), k2 and kc2 = 1 - k^2: (k,), by the
+    arithmetic-geometric mean (Abramowitz & Stegun 16.4; `agm`: `_agm(k2, kc2)` if
+    already known).
+
+    scipy.special.ellipj takes k^2 alone and forms 1 - k^2 itself: next to the separatrix
+    (k'^2 ~ 1e-12 for a body spun 1e-6 off its middle axis) that keeps only a few digits of
+    k'^2, and the period K ~ ln(4 / k') with them. Here the AGM starts from b0 = k'
+    exactly. dn = sqrt(k'^2 + k^2 cn^2) adds two positive terms (no cancellation where
+    dn is tiny, and no 0/0 of the textbook cos(phi0) / cos(phi1 - phi0))."""
+    scale, ratios = _agm(k2, kc2) if agm is None else agm
+    phi = scale[:, None] * u
+    for ratio in ratios[::-1]:
+        phi = 0.5 * (phi + np.arcsin(ratio[:, None] * np.sin(phi)))
     cn = np.cos(phi)
-    return np.sin(phi), cn, np.sqrt(kc2 + k2 * cn * cn)
-
-
-def _quadrature(start, length, G, A, k2, kc2):
-    """(k,) int_start^(start + length) du / (G + A dn u) on equal panels, each at most
-    _PANEL long (length < 0: backwards, a negative integral)."""
-    longest = float(np.abs(length).max(initial=0.0))
-    panels = max(1, math.ceil(longest / _PANEL))
-    width = length / panels  # (k,)
-    x, w = _gauss(_nodes_for(0.5 * longest / panels))
-    offsets = (np.arange(panels)[:, None] + x[None, :]).ravel()  # (panels * nodes,)
-    u = start[:, None] + width[:, None] * offsets[None, :]
-    dn = jacobi(u, k2[:, None], kc2[:, None])[2]
-    f = 1.0 / (G[:, None] + A[:, None] * dn)
-    return width * (f.reshape(len(start), panels, len(x)) @ w).sum(-1)
+    return np.sin(phi), cn, np.sqrt(kc2[:, None] + k2[:, None] * cn * cn)
 
 
 def exact_free_rotation(moments: np.ndarray, Rp: np.ndarray, L: np.ndarray,
@@ -216,25 +218,30 @@ def _jacobi_step(moments, m, G, h):
     sn0 = np.clip(_ratio(mb * sb, Ab), -1.0, 1.0)
     dn0 = np.clip(_ratio(mc * sc, Ac), 0.0, 1.0)
     u0 = sn0 * special.elliprf(cn0 * cn0, dn0 * dn0, 1.0)
-    u1 = u0 + lam * h
-    sn, cn, dn = jacobi(u1, k2, kc2)
+    # One pass of the Jacobi functions: column 0 is the step's end u1, the others the
+    # quadrature nodes of the psi integral's rest after whole periods.
+    du = lam * h
+    whole, rest = _whole_periods(special, u0, du, lam, G, Ac, k2, kc2)
+    nodes, weights = _panels(u0, rest)
+    sn, cn, dn = jacobi(np.concatenate([(u0 + du)[:, None], nodes], 1), k2, kc2)
+    moving = lam > 0
+    integral = whole + np.where(
+        moving, (weights / (G[:, None] + Ac[:, None] * dn[:, 1:])).sum(1) /
+        np.where(moving, lam, 1.0), h / (G + Ac * dn[:, 0]))  # lam = 0: dn stays dn(u0)
     m1 = np.empty_like(m)
-    m1[rows[:, 0], order[:, 0]] = sa * Aa * cn
-    m1[rows[:, 0], order[:, 1]] = sb * Ab * sn
-    m1[rows[:, 0], order[:, 2]] = sc * Ac * dn
+    m1[rows[:, 0], order[:, 0]] = sa * Aa * cn[:, 0]
+    m1[rows[:, 0], order[:, 1]] = sb * Ab * sn[:, 0]
+    m1[rows[:, 0], order[:, 2]] = sc * Ac * dn[:, 0]
     # psi: rate G/I_c plus (2T - G^2/I_c) / (G + A_c dn u), 2T - G^2/I_c without cancellation.
     excess = ma ** 2 * (1.0 / Ia - 1.0 / Ic) + mb ** 2 * (1.0 / Ib - 1.0 / Ic)
-    dpsi = h * G / Ic + excess * _psi_integral(special, u0, lam, h, G, Ac, k2, kc2)
+    dpsi = h * G / Ic + excess * integral
     e = np.zeros_like(m)
     e[rows[:, 0], order[:, 2]] = sc
-    P0 = _smallest_rotation(e, m / G[:, None])
-    P1 = _smallest_rotation(e, m1 / np.linalg.norm(m1, axis=-1, keepdims=True))
-    turn = np.empty((len(m), 3, 3))
-    for axis in (0, 2):  # rotation about e = sc e_c by dpsi
-        pick = order[:, 2] == axis
-        if pick.any():
-            turn[pick] = axis_rotation(axis, sc[pick] * dpsi[pick])
-    return P0 @ turn @ np.swapaxes(P1, -1, -2)
+    n = len(m)
+    P = _smallest_rotation(np.concatenate([e, e]), np.concatenate(
+        [m / G[:, None], m1 / np.linalg.norm(m1, axis=-1, keepdims=True)]))
+    # Rot_e(dpsi) = exp(dpsi e*): e is a signed coordinate axis, so exp_so3 is exact.
+    return P[:n] @ exp_so3(dpsi[:, None] * e) @ np.swapaxes(P[n:], -1, -2)
 
 
 def _ratio(num, den):
