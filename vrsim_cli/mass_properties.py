@@ -139,8 +139,10 @@ def shape_inertia(shape: dict, mass: float, dim: int) -> np.ndarray:
             return mass * np.diag([r2 / 4, r2 / 4, r2 / 2])
         return 0.4 * mass * r2 * np.eye(3)
     if kind == "box" or (kind == "cylinder" and dim == 2):
-        a, b, c = (shape["size"] + [0.0])[:3] if kind == "box" else \
-            (2 * shape["radius"], shape["length"], 0.0)
+        # float(): a huge integer size (YAML 2**63) would make an object array of Python
+        # ints; as a float it is caught as an overflow (OverflowError or inf) instead.
+        a, b, c = (float(x) for x in ((shape["size"] + [0.0])[:3] if kind == "box" else
+                                      (2 * shape["radius"], shape["length"], 0.0)))
         if dim == 2:
             c = 0.0
         return mass / 12.0 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b])
