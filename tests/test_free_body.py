@@ -173,6 +173,18 @@ def test_zero_angular_momentum_leaves_the_body_alone():
     assert np.array_equal(flow([1.0, 2.0, 3.0], Rp0, np.zeros(3), 3.0), Rp0)
 
 
+def test_a_non_finite_state_stays_non_finite():
+    # NaN or Inf in L (or R) gives a non-finite R, which rigid.check reports with the
+    # body's name; finite bodies in the same batch are unaffected.
+    moments = np.array([[1.0, 2.0, 3.0]] * 3)
+    Rp = np.broadcast_to(np.eye(3), (3, 3, 3))
+    L = np.array([[0.3, 0.2, 1.0], [np.nan, 0.0, 1.0], [np.inf, 0.0, 0.0]])
+    with np.errstate(invalid="ignore"):
+        out = exact_free_rotation(moments, Rp, L, 1.0)
+    assert np.isfinite(out[0]).all() and np.isnan(out[1:]).all()
+    assert np.array_equal(out[0], exact_free_rotation(moments[:1], Rp[:1], L[:1], 1.0)[0])
+
+
 def test_spherical_body_turns_about_l():
     Rp0 = random_rotation(9)
     L = np.array([0.3, -0.2, 0.9])

@@ -173,10 +173,12 @@ def exact_free_rotation(moments: np.ndarray, Rp: np.ndarray, L: np.ndarray,
     omega = m / moments
     axial = (np.count_nonzero(m, axis=-1) <= 1)  # m along a principal axis: steady
     round_ = (I3 - I1) <= 1e-12 * I3  # spherical (also every 2D body): Omega || m
-    steady = (G > 0) & (axial | round_)
+    finite = np.isfinite(G)
+    Q[~finite] = np.nan  # a blown-up state stays blown up: rigid.check names the body
+    steady = finite & (G > 0) & (axial | round_)
     if steady.any():
         Q[steady] = exp_so3(h * omega[steady])
-    gen = np.nonzero((G > 0) & ~steady)[0]
+    gen = np.nonzero(finite & (G > 0) & ~steady)[0]
     if len(gen):
         Q[gen] = _jacobi_step(moments[gen], m[gen], G[gen], h)
     return Rp @ Q
