@@ -221,7 +221,7 @@ _moment = st.floats(0.05, 5.0)
 _rate = st.floats(-3.0, 3.0)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=40, deadline=None, derandomize=True)  # the same cases in CI
 @given(moments=st.tuples(_moment, _moment, _moment), omega=st.tuples(_rate, _rate, _rate),
        t=st.floats(1e-3, 1.5), seed=st.integers(0, 2 ** 31), symmetric=st.integers(0, 2))
 def test_random_bodies_match_dop853(moments, omega, t, seed, symmetric):
