@@ -170,10 +170,12 @@ def exact_free_rotation(moments: np.ndarray, Rp: np.ndarray, L: np.ndarray,
     m = (L[:, None, :] @ Rp)[:, 0, :]  # (Rp^T L)^T
     Q = np.broadcast_to(np.eye(3), Rp.shape).copy()
     G = np.linalg.norm(m, axis=-1)
-    I1, I2, I3 = moments[:, 0], moments[:, 1], moments[:, 2]
+    I1, I3 = moments[:, 0], moments[:, 2]
     omega = m / moments
     axial = (np.count_nonzero(m, axis=-1) <= 1)  # m along a principal axis: steady
-    round_ = (I3 - I1) <= 1e-12 * I3  # spherical (also every 2D body): Omega || m
+    # Spherical (also every 2D body): Omega || m. Moments equal to 1e-12 (relative) count:
+    # treating them as equal turns the body wrong by ~1e-12 |Omega| h, round-off level.
+    round_ = (I3 - I1) <= 1e-12 * I3
     finite = np.isfinite(G)
     Q[~finite] = np.nan  # a blown-up state stays blown up: rigid.check names the body
     steady = finite & (G > 0) & (axial | round_)
