@@ -523,19 +523,21 @@ def bench(quick, peers, names, repeats, folder):
         if name not in known:
             raise click.BadParameter(f"unknown problem '{name}' (known: {', '.join(known)})",
                                      param_hint="--problem")
-    points = bench_module.run_bench(list(names) or None, quick=quick, peers=peers,
-                                    repeats=repeats)
+    results = bench_module.run_bench(list(names) or None, quick=quick, peers=peers,
+                                     repeats=repeats)
     reps = repeats or (2 if quick else 5)
-    note = (f"one warm-up run, then the best of {reps} timed runs; only the stepping is "
-            f"timed (model building and output are not)")
+    note = (f"one warm-up run, then the best of {reps} timed runs (fewer once the timed "
+            f"runs of one setting have taken {bench_module.REPEAT_BUDGET_S:g} s); only the "
+            f"stepping is timed (model building, output and the per-step sampling of "
+            f"measures are not)")
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
-    report = bench_module.markdown(points, note)
-    for name, text in (("bench.md", report), ("bench.json", bench_module.to_json(points))):
+    report = bench_module.markdown(results, note)
+    for name, text in (("bench.md", report), ("bench.json", bench_module.to_json(results))):
         target = AtomicFile(out / name)
         target.write(text.encode())
         target.commit()
-    plots = bench_module.plot(points, out)
+    plots = bench_module.plot(results, out)
     click.echo(report)
     click.echo(f"wrote {out / 'bench.md'}, {out / 'bench.json'}"
                + (f" and {len(plots)} plot(s)" if plots else
