@@ -178,6 +178,10 @@ def test_throughput_rows_and_their_report():
             "| escaped |") in text
     assert "| demo | dt = 1/60 s | 10 | 100 | 5.000 | 2000 | 0.002 | 3 |" in text
     assert "## projectile" in text and "## stack" in text
+    # a runner may also return plain dicts with the fields (bench_spheres.py does)
+    assert Row.of({"problem": "stack", "engine": "demo", "setting": "dt = 1/60 s",
+                   "bodies": 10, "steps": 100, "wall_s": 0.5, "ms_per_step": 99.0,
+                   "sanity": {"drift_m": 2e-3, "escaped": 3}}) == row
     data = json.loads(bench.to_json(results))
     assert data["throughput"][0]["body_steps_per_s"] == pytest.approx(2000.0)
     assert data["throughput"][0]["sanity"] == {"drift_m": 2e-3, "escaped": 3}
@@ -205,7 +209,8 @@ def test_bench_command_writes_report_json_and_plots(invoke, tmp_path):
     assert data["machine"]["cores"]
     for name in ("projectile", "bounce", "dzhanibekov"):
         assert {p["engine"] for p in data["points"] if p["problem"] == name} == engines
-    assert {r["engine"] for r in data["throughput"] if r["problem"] == "stack"} == engines
+    for name in ("spheres", "stack"):
+        assert {r["engine"] for r in data["throughput"] if r["problem"] == name} == engines
     text = (tmp_path / "b" / "bench.md").read_text()
     assert "| engine | method | dt (s) |" in text and "| body-steps/s |" in text
     assert invoke("bench", "--problem", "nope").exit_code == 2

@@ -73,6 +73,16 @@ class Row:
     wall_s: float  # best of the timed repeats, stepping only (all steps)
     sanity: dict = field(default_factory=dict)  # e.g. drift_m, tilt_rad, energy_ratio
 
+    @staticmethod
+    def of(item) -> "Row":
+        """A Row from a Row or from a dict with at least its fields (derived keys such as
+        ms_per_step are recomputed, not read)."""
+        if isinstance(item, Row):
+            return item
+        return Row(**{name: item[name] for name in ("problem", "engine", "setting",
+                                                     "bodies", "steps", "wall_s")},
+                   sanity=dict(item.get("sanity", {})))
+
     @property
     def ms_per_step(self) -> float:
         return 1e3 * self.wall_s / self.steps
@@ -442,7 +452,7 @@ bodies:
 
 
 def problems() -> dict[str, Problem]:
-    from vrsim_cli import bench_peers
+    from vrsim_cli import bench_peers, bench_spheres
 
     listed = [
         Problem(
@@ -476,6 +486,17 @@ def problems() -> dict[str, Problem]:
             runners={"vrsim": _vrsim_dzhanibekov, "mujoco": bench_peers.mujoco_dzhanibekov,
                      "pybullet": bench_peers.pybullet_dzhanibekov}),
         Problem(
+            name="spheres",
+            description="N = 100 and 1000 spheres (r = 0.05 m, 0.1 kg, restitution 0.5, "
+                        "friction 0.5) with random velocities in a closed box, g = 9.81, "
+                        "dt = 0.01 s (bench_spheres.py)",
+            truth="energy at the end over the start (<= 1), spheres that left the box "
+                  "(0), deepest wall penetration in m",
+            kind="throughput",
+            runners={"vrsim": bench_spheres.vrsim_spheres,
+                     "mujoco": bench_spheres.mujoco_spheres,
+                     "pybullet": bench_spheres.pybullet_spheres}),
+        Problem(
             name="stack",
             description="ten 1 kg unit cubes stacked on a ground plane, friction 0.5, "
                         "5 s (--quick: 0.5 s)",
@@ -503,7 +524,10 @@ def run_bench(names=None, quick=False, peers=False, repeats=None) -> Results:
             if engine != "vrsim" and (not peers or not bench_peers.available(engine)):
                 continue
             found = runner(quick, repeats)
-            (results.rows if problem.kind == "throughput" else results.points).extend(found)
+            if problem.kind == "throughput":
+                results.rows.extend(Row.of(item) for item in found)
+            else:
+                results.points.extend(found)
     return results
 
 
