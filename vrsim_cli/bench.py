@@ -338,6 +338,8 @@ def dzhanibekov_truth(d=None) -> np.ndarray:
     core dependency). Computed once per parameter set and cached (`cached_reference`)."""
     d = dict(d or DZHANIBEKOV)
     params = {k: d[k] for k in ("size", "mass", "omega0", "duration", "rtol")}
+    # what the value is: a changed meaning must not reuse an older cache file
+    params["value"] = "orientations (3, 3) at t = 1, 2, ... duration s"
     params = json.loads(json.dumps(params))  # tuples -> lists, as the cache file holds them
     return cached_reference("dzhanibekov", params, lambda: _dzhanibekov_solve(d))
 
