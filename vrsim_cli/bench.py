@@ -654,7 +654,7 @@ def throughput_markdown(problem: Problem, rows: list[Row]) -> list[str]:
               "| bodies | engine | best setting | wall/step (ms) | body-steps/s | "
               "vrsim / engine |", "|---|---|---|---|---|---|"]
     for e in throughput_summary(rows):
-        ratio = f"{e['vrsim_over_peer']:.2f}" if "vrsim_over_peer" in e else "-"
+        ratio = f"{e['vrsim_over_peer']:.3g}" if "vrsim_over_peer" in e else "-"
         lines.append(f"| {e['bodies']} | {e['engine']} | {e['setting']} | "
                      f"{e['ms_per_step']:.3f} | {e['body_steps_per_s']:.4g} | {ratio} |")
     return lines + [""]
