@@ -38,8 +38,9 @@ class System:
 
     J (3k, 6n): row 3c + j gives contact c's relative velocity along d_j (n, t1, t2):
         d_j . (v_B - v_A) + (p_B x d_j) . omega_B - (p_A x d_j) . omega_A
-    G (3k, 6n): row 3c + j is the change of u per unit impulse along d_j, transposed:
-        (d_j / m_B, I_B^-1 (p_B x d_j)) on B and minus A's on A. Same pattern as J.
+    GT (6n, 3k): column 3c + j is the change of u per unit impulse along d_j:
+        (d_j / m_B, I_B^-1 (p_B x d_j)) on B and minus A's on A. J's pattern, transposed
+        (the same arrays read as compressed columns).
     inv_k (k, 3): 1 / K along each d_j with every body's mass split among its contacts.
     dirs (k, 3, 3): rows n, t1, t2.
     """
@@ -65,7 +66,6 @@ class System:
         self.J = csr_matrix((np.concatenate([dirs, -dirs, jac_b, -jac_a], axis=2).ravel(),
                              cols, ptr), shape=(3 * k, 6 * n))
         g = np.concatenate([im_b * dirs, -im_a * dirs, rot_b, -rot_a], axis=2).ravel()
-        self.G = csr_matrix((g, cols, ptr), shape=(3 * k, 6 * n))
         self.GT = csc_matrix((g, cols, ptr), shape=(6 * n, 3 * k))  # G's arrays, transposed
         # K of each body alone along d_j; split: n_A K_A + n_B K_B (Tonge et al. 2012)
         part_a = im_a[:, :, 0] + (jac_a * rot_a).sum(2)
@@ -148,7 +148,7 @@ def correct_positions(system: System, slop: float, iterations: int):
     n = system.n_body
     q = np.zeros(6 * n)  # stacked displacements (dpos, dtheta)
     if system.k and iterations:
-        Jn, GnT = system.J[0::3], system.G[0::3].T
+        Jn, GnT = system.J[0::3], system.GT[:, 0::3]
         inv_k = system.inv_k[:, 0]
         for _ in range(iterations):
             lam = np.maximum(system.depth - Jn @ q - slop, 0.0) * inv_k

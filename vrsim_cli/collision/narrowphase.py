@@ -57,9 +57,13 @@ def _segment(world, g):
 
 
 def sphere_sphere(cm, world, ia, ib, margin):
-    point, n, depth = _spheres(world.pos[ia], cm.geom_radius[ia], world.pos[ib],
-                               cm.geom_radius[ib])
-    return _keep(np.arange(len(ia)), point, n, depth, margin)
+    # Most candidates of a pile are apart: keep by distance first (the same test as
+    # _keep's depth >= -margin), then compute contacts for the kept only.
+    ra, rb = cm.geom_radius[ia], cm.geom_radius[ib]
+    ca, cb = world.pos[ia], world.pos[ib]
+    pair = np.flatnonzero(ra + rb - np.linalg.norm(cb - ca, axis=-1) >= -margin)
+    point, n, depth = _spheres(ca[pair], ra[pair], cb[pair], rb[pair])
+    return pair, point, n, depth
 
 
 def plane_sphere(cm, world, ia, ib, margin):

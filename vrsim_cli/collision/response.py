@@ -346,7 +346,7 @@ def resting(model, start, state, last=None, c=None):
     last = start if last is None else last
     rm = model.response
     c = detect(model, state) if c is None else c
-    mode = _modes(model, c)
+    mode, pair_eps, pair_mu = rm.pair_values(c.body_a, c.body_b)
     impulse = np.zeros((len(c), 3))
     bodies = bodies_of(model, state)
     # stop: a body in penetrating contact goes back to its pose at the step's start, at rest
@@ -380,7 +380,7 @@ def resting(model, start, state, last=None, c=None):
         if stepped:  # impacts and rest in one parallel solve (restitution included)
             system = jacobi.System(bodies, sub.body_a, sub.body_b, sub.point, sub.normal,
                                    sub.depth)
-            _, eps, mu = rm.pair_values(sub.body_a, sub.body_b)
+            eps, mu = pair_eps[rows], pair_mu[rows]
             impulse[rows] = jacobi.solve(bodies, system, eps, mu, model.dt, rm.rest_speed,
                                          rm.iterations, _warm_start_keyed(start, sub, model))
             dp, dth = jacobi.correct_positions(system, rm.slop, rm.position_iterations)
