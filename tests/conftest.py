@@ -38,3 +38,26 @@ def invoke(runner):
         return runner.invoke(cli, [str(a) for a in args], catch_exceptions=False)
 
     return call
+
+
+class Steps:
+    """Writer that keeps every sampled state."""
+
+    def __init__(self):
+        self.states = []
+
+    def write(self, state):
+        self.states.append(state)
+
+
+def simulate(text: str):
+    """(model, sampled states, final state) of a scene given as YAML text."""
+    from vrsim_cli.loop import run
+    from vrsim_cli.model import compile_model
+    from vrsim_cli.scene import parse_scene
+    from vrsim_cli.state import make_state
+
+    model = compile_model(parse_scene(text))
+    rec = Steps()
+    result = run(model, make_state(model), rec)
+    return model, rec.states, result.state

@@ -14,31 +14,12 @@ from mcap.reader import make_reader
 from vrsim_cli.collision.response_model import (DEFAULT_FRICTION, IMPULSE, NONE, SLIDE,
                                                 STOP)
 from vrsim_cli.errors import InputError
-from vrsim_cli.loop import run
 from vrsim_cli.model import compile_model
 from vrsim_cli.scene import parse_scene
-from vrsim_cli.state import make_state
 
-from conftest import SCENARIOS
+from conftest import SCENARIOS, simulate
 
 G = 9.81
-
-
-class Steps:
-    """Writer that keeps every sampled state."""
-
-    def __init__(self):
-        self.states = []
-
-    def write(self, state):
-        self.states.append(state)
-
-
-def simulate(text: str):
-    model = compile_model(parse_scene(text))
-    rec = Steps()
-    result = run(model, make_state(model), rec)
-    return model, rec.states, result.state
 
 
 def impacts(states, body_a, body_b):

@@ -19,22 +19,9 @@ from vrsim_cli.model import compile_model
 from vrsim_cli.scene import parse_scene
 from vrsim_cli.state import make_state
 
+from conftest import Steps, simulate
+
 G = 9.81
-
-
-class Steps:
-    def __init__(self):
-        self.states = []
-
-    def write(self, state):
-        self.states.append(state)
-
-
-def simulate(text: str):
-    model = compile_model(parse_scene(text))
-    rec = Steps()
-    result = run(model, make_state(model), rec)
-    return model, rec.states, result.state
 
 
 @settings(max_examples=40, deadline=None)
