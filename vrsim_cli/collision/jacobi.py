@@ -54,6 +54,12 @@ class System:
         dirs = _basis(normal)  # (k, 3, 3): rows n, t1, t2
         jac_a = _cross(arm_a[:, None, :], dirs)  # (k, 3, 3): p x d_j per row
         jac_b = _cross(arm_b[:, None, :], dirs)
+        # An arm along the normal (every sphere) has no normal torque: drop the round-off
+        # of p x n, so pushing a sphere out of penetration does not turn it by 1e-20 rad.
+        for arm, jac in ((arm_a, jac_a), (arm_b, jac_b)):
+            length = np.sqrt((arm * arm).sum(1))
+            tiny = np.sqrt((jac[:, 0] ** 2).sum(1)) <= 1e-12 * length
+            jac[tiny, 0] = 0.0
         rot_a = jac_a @ bodies.inv_inertia[a]  # rows I^-1 (p x d_j) (I^-1 is symmetric)
         rot_b = jac_b @ bodies.inv_inertia[b]
         im_a = bodies.inv_mass[a, None, None]
