@@ -7,6 +7,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from vrsim_cli.collision import broadphase
 from vrsim_cli.collision.broadphase import candidate_pairs
 
 
@@ -48,3 +49,19 @@ def test_identical_boxes_in_one_cell_pair_once():
     hi = np.ones((5, 3))
     expected = [(i, j) for i in range(5) for j in range(i + 1, 5)]
     assert pairs(lo, hi, "grid") == expected == pairs(lo, hi, "sap")
+
+
+def test_boxes_touching_exactly_far_from_the_origin_are_paired():
+    """Centres near 1000 m carry rounding of an ulp: two boxes that touch exactly (overlap
+    0) must still land in neighbouring cells (found by review; brute force is the truth)."""
+    lo = np.array([[-999.9999333333334, -1000.0, -999.9999],
+                   [-1000.0000666666666, -1000.0001666666667, -999.9999],
+                   [-999.9999, -999.9999666666666, -999.9999333333334]])
+    hi = np.array([[-999.9999, -999.9999666666666, -999.9998666666667],
+                   [-1000.0000333333332, -1000.0001333333333, -999.9998666666667],
+                   [-999.9998666666667, -999.9999333333333, -999.9999]])
+    expected = broadphase.brute_force(lo, hi)
+    assert (0, 2) in set(zip(*[x.tolist() for x in expected]))
+    for method in ("grid", "sap"):
+        got = broadphase.candidate_pairs(lo, hi, method)
+        assert [x.tolist() for x in got] == [x.tolist() for x in expected]

@@ -72,12 +72,16 @@ def uniform_grid(lo, hi):
     if n < 2:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     size = float((hi - lo).max())
-    cell = size if size > 0.0 else 1.0
     centre = 0.5 * (lo + hi)
-    c = np.floor((centre - centre.min(axis=0)) / cell).astype(np.int64) + 1  # -1 stays >= 0
-    span = c.max(axis=0) + 2
-    if float(np.prod(span.astype(float))) >= 2.0 ** 62:  # too sparse to key: sort instead
+    # slack of a few ulps: centres carry rounding, and boxes that touch exactly must not
+    # land two cells apart
+    cell = (size if size > 0.0 else 1.0) + 8.0 * float(np.spacing(np.abs(centre).max()))
+    c = np.floor((centre - centre.min(axis=0)) / cell)  # float first: no overflowing cast
+    span = c.max(axis=0) + 3.0
+    if float(np.prod(span)) >= 2.0 ** 62:  # too sparse to key: sort instead
         return sweep_and_prune(lo, hi)
+    c = c.astype(np.int64) + 1  # -1 stays >= 0
+    span = span.astype(np.int64)
     key = (c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]
     order = np.argsort(key, kind="stable")
     key = key[order]
