@@ -17,10 +17,14 @@ unlike Gauss-Seidel it needs no ordering and no colouring.
 
 Per contact (n, t1, t2), accumulated impulses lam (Catto 2006): the normal impulse stays
 >= 0, friction stays in the Coulomb cone |lam_t| <= mu lam_n. The normal target velocity:
-- touching or penetrating and approaching faster than rest_speed: -eps vn0 (Newton's
-  restitution on the velocity the contact had at the step's end, vn0; slide 5.4.2);
+- touching, penetrating, or with a gap g that it would close within a step (-vn0 dt >=
+  g), and approaching faster than the bounce speed: -eps vn0 (Newton's restitution on
+  the velocity the contact had at the step's end, vn0; slide 5.4.2);
 - touching, slower: 0 (resting contact);
-- a gap g > 0 (within the tolerance): -g / dt, the contact may close the gap this step.
+- a gap g > 0 (within the tolerance) it would not close: -g / dt, the contact may close
+  the gap this step.
+The bounce speed (`response.resting`) is rest_speed, but at least 2 |g| dt: a resting
+contact approaches at |g| dt after each free-flight step, which must not bounce.
 Warm starting takes last step's impulse of the same contact. Penetration is then removed
 by the same Jacobi iteration on positions (linearised, along the normal), down to `slop`.
 """
@@ -128,9 +132,13 @@ def solve(bodies: Bodies, system: System, restitution, friction, dt: float,
         return np.zeros((0, 3))
     u = _stack(bodies)
     vn0 = (system.J @ u)[0::3]
-    bounce = np.where(vn0 < -rest_speed, -restitution * vn0, 0.0)
+    impact = vn0 < -rest_speed
+    bounce = np.where(impact, -restitution * vn0, 0.0)
+    # A gap this step's approach would close is an impact now: waiting a step would
+    # first slow it to gap/dt and then bounce that tiny speed.
+    closes = (system.depth >= 0.0) | (impact & (-vn0 * dt >= -system.depth))
     target = np.zeros((k, 3))
-    target[:, 0] = np.where(system.depth < 0.0, system.depth / dt, bounce)  # m/s wanted
+    target[:, 0] = np.where(closes, bounce, system.depth / dt)  # m/s wanted
     lam = np.zeros((k, 3))
     if warm is not None:
         lam = (system.dirs * warm[:, None, :]).sum(2)

@@ -381,7 +381,10 @@ def resting(model, start, state, last=None, c=None):
             system = jacobi.System(bodies, sub.body_a, sub.body_b, sub.point, sub.normal,
                                    sub.depth)
             eps, mu = pair_eps[rows], pair_mu[rows]
-            impulse[rows] = jacobi.solve(bodies, system, eps, mu, model.dt, rm.rest_speed,
+            # a resting contact comes in at |g| dt after a free-flight step: no bounce
+            bounce_speed = max(rm.rest_speed, 2.0 * float(np.linalg.norm(model.gravity)) *
+                               model.dt)
+            impulse[rows] = jacobi.solve(bodies, system, eps, mu, model.dt, bounce_speed,
                                          rm.iterations, _warm_start_keyed(start, sub, model))
             dp, dth = jacobi.correct_positions(system, rm.slop, rm.position_iterations)
         else:
