@@ -95,8 +95,8 @@ def _cross(u, v):
 
 
 def _basis(normal):
-    """(k, 3, 3) rows n, t1, t2: an orthonormal right-handed basis per normal (t1 from
-    the world axis least along n, as `solver.tangents`)."""
+    """(k, 3, 3) rows n, t1, t2: an orthonormal right-handed basis per normal (t1 is n
+    crossed with the world axis least along n, so it is never ill-conditioned)."""
     helper = np.zeros_like(normal)
     helper[np.arange(len(normal)), np.argmin(np.abs(normal), axis=1)] = 1.0
     t1 = _cross(normal, helper)
@@ -122,17 +122,18 @@ def _cone_scale(lam, friction):
 
 
 def solve(bodies: Bodies, system: System, restitution, friction, dt: float,
-          rest_speed: float, iterations: int, warm=None) -> np.ndarray:
+          bounce_speed: float, iterations: int, warm=None) -> np.ndarray:
     """Velocities of `bodies` after the contacts' impulses (in place). Returns the
     accumulated impulse (k, 3) N s, world, on B of each contact. restitution, friction:
-    (k,) combined material values; warm: (k, 3) impulses (N s, world) to start from (last
-    step's, same contact), or None."""
+    (k,) combined material values; bounce_speed: m/s, contacts approaching slower rest;
+    warm: (k, 3) impulses (N s, world) to start from (last step's, same contact), or
+    None."""
     k = system.k
     if not k:
         return np.zeros((0, 3))
     u = _stack(bodies)
     vn0 = (system.J @ u)[0::3]
-    impact = vn0 < -rest_speed
+    impact = vn0 < -bounce_speed
     bounce = np.where(impact, -restitution * vn0, 0.0)
     # A gap this step's approach would close is an impact now: waiting a step would
     # first slow it to gap/dt and then bounce that tiny speed.
