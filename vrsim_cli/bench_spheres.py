@@ -117,7 +117,8 @@ def vrsim_spheres(quick: bool, repeats: int) -> list[dict]:
         wall, result = best_time(lambda: run(model, make_state(model)), repeats)
         s = result.state
         pos0, vel0, half, height = layout(n)
-        dyn = slice(6, 6 + n)
+        first = len(walls(half, height))  # the scene lists the walls, then the spheres
+        dyn = slice(first, first + n)
         rows.append(row("vrsim", f"stepped impacts, {model.response.iterations}+"
                         f"{model.response.position_iterations} Jacobi iterations", n, s.step,
                         wall, sanity(s.body_pos[dyn], s.body_vel[dyn], s.body_angvel[dyn],
