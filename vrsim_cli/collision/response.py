@@ -330,10 +330,10 @@ def _warm_start_keyed(before, c: Contacts, model):
         return pair * 64 + np.minimum(np.arange(len(pair)) - first, 63)
 
     key_old = keys(old.body_a[keep], old.body_b[keep])
-    key_new = keys(c.body_a, c.body_b)
-    row = np.clip(np.searchsorted(key_old, key_new), 0, max(len(key_old) - 1, 0))
     if not len(key_old):
         return None
+    key_new = keys(c.body_a, c.body_b)
+    row = np.minimum(np.searchsorted(key_old, key_new), len(key_old) - 1)
     hit = key_old[row] == key_new
     return np.where(hit[:, None], imp[keep][row], 0.0)
 
