@@ -21,10 +21,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from vrsim_cli.model import compile_model
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.state import make_state
 from vrsim_cli.render import open_renderer, time_label
-from vrsim_cli.scene import parse_scene
-from vrsim_cli.state import make_state
+from vrsim_cli.scene.spec import parse_scene
 from vrsim_cli.writers.frames import FramesWriter
 from vrsim_cli.writers.png import encode_png
 
@@ -81,7 +81,7 @@ def main(argv=None) -> None:
     rows = [("render", time_batches(render, args.frames, args.batches)),
             ("encode", time_batches(encode, args.frames, args.batches))]
     with tempfile.TemporaryDirectory() as folder:
-        from vrsim_cli.frames_spec import FramesSpec
+        from vrsim_cli.model.frames import FramesSpec
 
         spec = FramesSpec(Path(folder), 1, args.width, args.height)
         writer = FramesWriter(model, spec, renderer, label=time_label)

@@ -23,9 +23,9 @@ import time
 
 import numpy as np
 
-from vrsim_cli.collision.broadphase import candidate_pairs
-from vrsim_cli.collision.detect import narrow_phase
-from vrsim_cli.collision.shapes import aabbs, analytic_geom, place, table
+from vrsim_cli.model.collision import aabbs, analytic_geom, place, table
+from vrsim_cli.stages.collision.broadphase import candidate_pairs
+from vrsim_cli.stages.collision.detect import narrow_phase
 
 DENSITY = 8.0  # spheres per m^3
 

@@ -53,9 +53,9 @@ class Steps:
 def simulate(text: str):
     """(model, sampled states, final state) of a scene given as YAML text."""
     from vrsim_cli.loop import run
-    from vrsim_cli.model import compile_model
-    from vrsim_cli.scene import parse_scene
-    from vrsim_cli.state import make_state
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import parse_scene
 
     model = compile_model(parse_scene(text))
     rec = Steps()

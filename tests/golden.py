@@ -30,8 +30,8 @@ from pathlib import Path
 from click.testing import CliRunner
 
 from vrsim_cli.cli import cli
-from vrsim_cli.compare import Tolerance, TolerancePlan, compare, format_report
-from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.tools.compare import Tolerance, TolerancePlan, compare, format_report
+from vrsim_cli.tools.trajectory import read_trajectory
 
 REPO = Path(__file__).resolve().parent.parent
 SCENARIOS = REPO / "scenarios"

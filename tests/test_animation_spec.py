@@ -6,8 +6,8 @@ import pytest
 
 from conftest import SCENARIOS
 from vrsim_cli.errors import InputError
-from vrsim_cli.model import compile_model
-from vrsim_cli.scene import load_scene
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.scene.spec import load_scene
 
 
 def problems(write_scene, text: str) -> list[str]:

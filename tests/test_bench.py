@@ -10,8 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from vrsim_cli import bench
-from vrsim_cli.bench import (BOUNCE, DZHANIBEKOV, Point, Results, Row, bounce_errors,
+from vrsim_cli.tools.bench import problems as bench
+from vrsim_cli.tools.bench.problems import (BOUNCE, DZHANIBEKOV, Point, Results, Row, bounce_errors,
                              bounce_truth, cached_reference, flight_apexes, run_bench, summary)
 
 
@@ -211,7 +211,7 @@ def test_registered_problems_have_a_runner_per_engine_and_a_known_kind():
 def test_bench_command_writes_report_json_and_plots(invoke, tmp_path):
     # Every problem, with the peers that are installed (CI installs only '.[test]', so
     # there the peers' code runs where a developer has the 'bench' extra).
-    from vrsim_cli import bench_peers
+    from vrsim_cli.tools.bench import peers as bench_peers
 
     result = invoke("bench", "--quick", "--peers", "--repeats", "1", "-o", tmp_path / "b")
     assert result.exit_code == 0, result.output

@@ -7,9 +7,9 @@ import math
 
 import numpy as np
 
-from vrsim_cli import bench_spheres as bs
-from vrsim_cli.model import compile_model
-from vrsim_cli.scene import parse_scene
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.scene.spec import parse_scene
+from vrsim_cli.tools.bench import spheres as bs
 
 
 def test_layout_puts_every_sphere_inside_the_box_without_overlap():

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from vrsim_cli.camera import Camera, framing_camera
+from vrsim_cli.maths.camera import Camera, framing_camera
 
 
 def pinhole(eye, target, up, fov_deg, width, height, points):

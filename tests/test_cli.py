@@ -8,7 +8,7 @@ import json
 import pytest
 
 from conftest import SCENARIOS
-from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.tools.trajectory import read_trajectory
 from vrsim_cli.writers import tum_writer
 from vrsim_cli.writers.atomic import AtomicFile
 
@@ -247,10 +247,10 @@ def test_version(invoke):
 def test_progress_bar_on_a_terminal_for_long_runs(write_scene, monkeypatch):
     import io
     import vrsim_cli.cli as cli_module
-    from vrsim_cli.model import compile_model
-    from vrsim_cli.scene import load_scene
-    from vrsim_cli.state import make_state
-    from vrsim_cli.dynamics import step
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import load_scene
+    from vrsim_cli.stages.dynamics.motion import step
 
     class Terminal(io.StringIO):
         def isatty(self):

@@ -7,8 +7,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vrsim_cli.collision import broadphase
-from vrsim_cli.collision.broadphase import candidate_pairs
+from vrsim_cli.stages.collision import broadphase
+from vrsim_cli.stages.collision.broadphase import candidate_pairs
 
 
 def boxes(seed: int, n: int, spread: float, large: int = 0, planes: int = 0):

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from vrsim_cli.collision import Contacts, detect, step
 from vrsim_cli.errors import InputError
 from vrsim_cli.loop import run
-from vrsim_cli.model import compile_model
-from vrsim_cli.scene import load_scene, parse_scene
-from vrsim_cli.state import make_state
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.state import make_state
+from vrsim_cli.scene.spec import load_scene, parse_scene
+from vrsim_cli.stages.collision import Contacts, detect, step
 
 from conftest import SCENARIOS
 

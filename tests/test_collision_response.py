@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from vrsim_cli.collision.response_model import (DEFAULT_FRICTION, IMPULSE, NONE, SLIDE,
-                                                STOP)
 from vrsim_cli.errors import InputError
-from vrsim_cli.model import compile_model
-from vrsim_cli.scene import parse_scene
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.response import (DEFAULT_FRICTION, IMPULSE, NONE, SLIDE,
+                                                STOP)
+from vrsim_cli.scene.spec import parse_scene
 
 from conftest import SCENARIOS, simulate
 

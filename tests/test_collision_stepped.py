@@ -11,13 +11,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vrsim_cli.collision import jacobi
-from vrsim_cli.collision.response_model import AUTO_LOCATED_BODIES
-from vrsim_cli.collision.solver import Bodies
 from vrsim_cli.loop import run
-from vrsim_cli.model import compile_model
-from vrsim_cli.scene import parse_scene
-from vrsim_cli.state import make_state
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.response import AUTO_LOCATED_BODIES
+from vrsim_cli.model.state import make_state
+from vrsim_cli.scene.spec import parse_scene
+from vrsim_cli.stages.collision import jacobi
+from vrsim_cli.stages.collision.solver import Bodies
 
 from conftest import Steps, simulate
 
@@ -79,7 +79,7 @@ def test_a_ball_leaves_the_ground_at_eps_times_its_speed_at_the_step_end(eps):
     run(model, make_state(model), rec)
     states = rec.states
     k = next(i for i, s in enumerate(states) if s.body_vel[1, 1] >= 0.0 and i > 0)
-    from vrsim_cli import dynamics
+    from vrsim_cli.stages.dynamics import motion as dynamics
 
     free = dynamics.step(model, states[k - 1])  # the step without response
     assert free.body_pos[1, 1] < 0.1  # it did penetrate

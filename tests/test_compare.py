@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from vrsim_cli.compare import (TIME_EPS_S, Tolerance, TolerancePlan, compare, match_times,
+from vrsim_cli.tools.compare import (TIME_EPS_S, Tolerance, TolerancePlan, compare, match_times,
                                quat_angle)
-from vrsim_cli.trajectory import Track, Trajectory, read_trajectory
+from vrsim_cli.tools.trajectory import Track, Trajectory, read_trajectory
 from vrsim_cli.writers import CSV_COLUMNS
 
 

@@ -13,7 +13,7 @@ import time
 import pytest
 
 from conftest import REPO
-from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.tools.trajectory import read_trajectory
 from vrsim_cli.writers import atomic, tum_writer
 
 BALL = """

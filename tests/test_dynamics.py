@@ -12,13 +12,13 @@ import math
 import numpy as np
 import pytest
 
-from vrsim_cli.dynamics import step
 from vrsim_cli.errors import SimulationError
-from vrsim_cli.integrators import INTEGRATORS, ORDER
 from vrsim_cli.loop import check_state, run
-from vrsim_cli.model import compile_model
-from vrsim_cli.scene import parse_scene, scene_schema
-from vrsim_cli.state import make_state
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.state import make_state
+from vrsim_cli.scene.spec import parse_scene, scene_schema
+from vrsim_cli.stages.dynamics.integrators import INTEGRATORS, ORDER
+from vrsim_cli.stages.dynamics.motion import step
 
 ROUND_OFF_M = 1e-10
 G = np.array([0.0, -9.81, 0.0])

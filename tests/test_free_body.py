@@ -30,15 +30,15 @@ from scipy.integrate import solve_ivp
 
 from test_rigid import (MOMENTS, OMEGA0, free_box_scene, reference, rotation_angle,
                         simulate)
-from vrsim_cli import rigid
 from vrsim_cli.errors import InputError
-from vrsim_cli.free_body import exact_free_rotation
 from vrsim_cli.loop import run
-from vrsim_cli.model import compile_model
-from vrsim_cli.rotation import axis_rotation
-from vrsim_cli.scene import parse_scene
-from vrsim_cli.spatial import quat_to_matrix
-from vrsim_cli.state import make_state
+from vrsim_cli.maths.rotation import axis_rotation
+from vrsim_cli.maths.spatial import quat_to_matrix
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.state import make_state
+from vrsim_cli.scene.spec import parse_scene
+from vrsim_cli.stages.dynamics import rigid
+from vrsim_cli.stages.dynamics.free_body import exact_free_rotation
 
 EXACT = "rotation: {free_flow: exact}"
 
@@ -131,7 +131,7 @@ def test_symmetric_top_is_the_closed_form_precession(moments, axis):
 
 
 def _exp(w):
-    from vrsim_cli.rotation import exp_so3
+    from vrsim_cli.maths.rotation import exp_so3
     return exp_so3(w[None])[0]
 
 

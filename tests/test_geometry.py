@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vrsim_cli.geometry import (capsule_distance, capsule_overlaps_bounds, ray_cast,
+from vrsim_cli.maths.geometry import (capsule_distance, capsule_overlaps_bounds, ray_cast,
                                 signed_distance)
-from vrsim_cli.spatial import IDENTITY_QUAT, quat_from_axis_angle
+from vrsim_cli.maths.spatial import IDENTITY_QUAT, quat_from_axis_angle
 
 BOX = {"type": "box", "size": [2.0, 1.0, 4.0]}
 SPHERE = {"type": "sphere", "radius": 0.5}

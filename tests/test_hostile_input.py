@@ -29,7 +29,7 @@ from hypothesis import strategies as st
 
 from conftest import SCENARIOS
 from vrsim_cli.cli import cli
-from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.tools.trajectory import read_trajectory
 
 # A valid scene that touches every part of the format. frame_rate and dt equal the
 # overrides the runs use (--dt 0.01), so mutated files are run as written where they can be.

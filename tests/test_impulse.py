@@ -7,7 +7,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vrsim_cli.impulse import (body_deltas, inverse_mass_along, point_velocity,
+from vrsim_cli.maths.impulse import (body_deltas, inverse_mass_along, point_velocity,
                                restitution_alpha)
 
 

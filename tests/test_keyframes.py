@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vrsim_cli.keyframes import TrackError, compile_track, evaluate, hsv_to_rgb, rgb_to_hsv
-from vrsim_cli.spatial import quat_from_axis_angle, quat_multiply
+from vrsim_cli.maths.spatial import quat_from_axis_angle, quat_multiply
+from vrsim_cli.model.keyframes import TrackError, compile_track, evaluate, hsv_to_rgb, rgb_to_hsv
 
 TIMES = [0.0, 1.0, 3.0, 3.5, 5.0]  # uneven on purpose: timing bugs show up
 POINTS = [[0.0, 0.0, 0.0], [1.0, 0.5, 0.0], [1.0, 2.0, -1.0], [3.0, 1.0, 1.0], [2.0, 0.0, 0.0]]
@@ -54,7 +54,7 @@ EULER = [[0, 0, 0], [0, 90, 0], [90, 90, 0], [0, 0, 170], [10, 20, 30]]
 
 @pytest.mark.parametrize("mode", ["step", "slerp", "linear", "squad"])
 def test_every_rotation_mode_hits_every_key(mode):
-    from vrsim_cli.spatial import quat_from_euler_deg
+    from vrsim_cli.maths.spatial import quat_from_euler_deg
     tr = compile_track({"times": TIMES, "euler_deg": EULER, "interpolation": mode}, "rotation")
     for t, e in zip(TIMES, EULER):
         q = evaluate(tr, t)[0]

@@ -13,10 +13,10 @@ import pytest
 
 from conftest import REPO, SCENARIOS
 from vrsim_cli.loop import run
-from vrsim_cli.model import compile_model
-from vrsim_cli.scene import load_scene, parse_scene
-from vrsim_cli.state import make_state, state_hash
-from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.state import make_state, state_hash
+from vrsim_cli.scene.spec import load_scene, parse_scene
+from vrsim_cli.tools.trajectory import read_trajectory
 from vrsim_cli.writers import open_writer
 
 

@@ -12,11 +12,11 @@ import pytest
 import trimesh
 
 from vrsim_cli.errors import InputError
-from vrsim_cli.mass_properties import (body_mass_properties, cube_inertia_formula,
+from vrsim_cli.model.mass_properties import (body_mass_properties, cube_inertia_formula,
                                        grid_particles, particle_properties, shape_inertia,
                                        shape_volume)
-from vrsim_cli.model import compile_model
-from vrsim_cli.scene import parse_scene
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.scene.spec import parse_scene
 
 # ----------------------------------------------------------------------------- slide cube
 

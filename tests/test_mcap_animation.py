@@ -8,11 +8,11 @@ import numpy as np
 from mcap.reader import make_reader
 
 from conftest import SCENARIOS
-from vrsim_cli.keyframes import evaluate
 from vrsim_cli.loop import run
-from vrsim_cli.model import compile_model
-from vrsim_cli.scene import load_scene, parse_scene
-from vrsim_cli.state import make_state
+from vrsim_cli.model.keyframes import evaluate
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.state import make_state
+from vrsim_cli.scene.spec import load_scene, parse_scene
 from vrsim_cli.writers import open_writer
 from vrsim_cli.writers.mcap_animation import scaled
 

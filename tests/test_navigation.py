@@ -10,13 +10,13 @@ import pytest
 
 from conftest import SCENARIOS
 from vrsim_cli.loop import run
-from vrsim_cli.model import compile_model
-from vrsim_cli.model_observer import input_at
-from vrsim_cli.scene import load_scene, parse_scene
-from vrsim_cli.spatial import quat_rotate
-from vrsim_cli.state import make_state
-from vrsim_cli.trajectory import read_trajectory
-from vrsim_cli.walk_table import format_table, slide_rows
+from vrsim_cli.maths.spatial import quat_rotate
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.observer import input_at
+from vrsim_cli.model.state import make_state
+from vrsim_cli.scene.spec import load_scene, parse_scene
+from vrsim_cli.tools.trajectory import read_trajectory
+from vrsim_cli.tools.walk_table import format_table, slide_rows
 
 # Slide 5.1, the walk table (errata: the slide's column labels are swapped).
 SLIDE_TABLE = """\

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from test_camera import pinhole
-from vrsim_cli.model import compile_model
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.state import make_state
 from vrsim_cli.render import RenderUnavailable, default_camera, open_renderer, time_label
 from vrsim_cli.render.font import GLYPH_H, text_mask
-from vrsim_cli.scene import parse_scene
-from vrsim_cli.state import make_state
+from vrsim_cli.scene.spec import parse_scene
 
 W, H = 320, 240
 BACKGROUND = np.array([0.92, 0.93, 0.95]) * 255  # the documented clear colour
@@ -30,7 +30,7 @@ def render(text: str, camera=True, width=W, height=H, overlay=None):
     model = compile_model(parse_scene(text))
     cam = None
     if camera:
-        from vrsim_cli.camera import Camera
+        from vrsim_cli.maths.camera import Camera
         cam = Camera.looking_at(EYE, TARGET, UP, FOV)
     renderer = open_renderer(model, width, height, cam)
     try:
@@ -77,7 +77,7 @@ def test_red_sphere_appears_at_its_projected_pixel():
 
 
 def test_a_camera_given_per_image_moves_the_view():
-    from vrsim_cli.camera import Camera
+    from vrsim_cli.maths.camera import Camera
     model = compile_model(parse_scene(scene(
         f"{{name: ball, type: static, shape: {{type: sphere, radius: {RED_RADIUS}}}, "
         f"position: {RED_AT}, color: [1, 0, 0]}}")))
@@ -127,7 +127,7 @@ def test_mesh_shapes_are_drawn_through_trimesh(tmp_path):
                  f" position: {RED_AT}, color: [1, 0, 1]}}")
     text += (f"output: {{frames: {{camera: {{position: {EYE}, look_at: {TARGET}, "
              f"fov_deg: {FOV}}}}}}}\n")
-    from vrsim_cli.camera import Camera
+    from vrsim_cli.maths.camera import Camera
     model = compile_model(parse_scene(text, base_dir=tmp_path))
     renderer = open_renderer(model, W, H, Camera.looking_at(EYE, TARGET, UP, FOV))
     image = renderer.render(make_state(model))
@@ -157,7 +157,7 @@ def test_particles_appear_from_their_emission_on():
                  "position: [0, 1, 0]}")
     text += ("emitters: [{name: p, position: [1.0, 1.6, 0], direction: [0, 1, 0], speed: 0, "
              "count: 2, rate: 1, mass: 1, radius: 0.3, color: [1, 0, 0]}]\n")
-    from vrsim_cli.camera import Camera
+    from vrsim_cli.maths.camera import Camera
     model = compile_model(parse_scene(text))
     renderer = open_renderer(model, W, H, Camera.looking_at(EYE, TARGET, UP, FOV))
     state = make_state(model)

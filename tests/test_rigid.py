@@ -15,16 +15,16 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.special import fresnel
 
-from vrsim_cli import rigid
-from vrsim_cli.dynamics import moving_mask
 from vrsim_cli.errors import SimulationError
 from vrsim_cli.loop import run
-from vrsim_cli.model import compile_model
-from vrsim_cli.rotation import orthonormality_error
-from vrsim_cli.scene import parse_scene
-from vrsim_cli.spatial import quat_to_matrix
-from vrsim_cli.state import make_state
-from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.maths.rotation import orthonormality_error
+from vrsim_cli.maths.spatial import quat_to_matrix
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.state import make_state
+from vrsim_cli.scene.spec import parse_scene
+from vrsim_cli.stages.dynamics import rigid
+from vrsim_cli.stages.dynamics.motion import moving_mask
+from vrsim_cli.tools.trajectory import read_trajectory
 
 BOX = (0.1, 0.4, 1.0)  # m
 MOMENTS = np.array([BOX[1] ** 2 + BOX[2] ** 2, BOX[0] ** 2 + BOX[2] ** 2,
@@ -661,7 +661,7 @@ def test_a_windowed_force_does_not_switch_the_energy_guard_off(invoke, write_sce
     scene = write_scene(text)
     plain = invoke("run", scene, "--integrator", "euler")
     assert plain.exit_code == 1 and "the energy grew" in plain.stderr
-    from vrsim_cli.scene import load_scene
+    from vrsim_cli.scene.spec import load_scene
     import yaml
     data = yaml.safe_load(text)
     data["bodies"][0]["forces"] = [{"force": [0, 0, 1e-9], "end": 0.004}]
@@ -679,7 +679,7 @@ def test_inertia_error_names_the_key_that_made_it(invoke, write_scene):
 
 
 def test_the_slides_cube_keeps_its_body_axes_as_principal_axes():
-    from vrsim_cli.mass_properties import body_mass_properties
+    from vrsim_cli.model.mass_properties import body_mass_properties
     props = body_mass_properties({"name": "c", "particles": {"grid": {"n": 10, "size": 2.0,
                                                                        "mass": 1.0}}}, 3)
     moments, axes = props.principal()

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vrsim_cli.rotation import (axis_rotation, exp_so3, orthonormality_error, orthonormalize,
+from vrsim_cli.maths.rotation import (axis_rotation, exp_so3, orthonormality_error, orthonormalize,
                                 quat_from_matrix, skew)
-from vrsim_cli.spatial import quat_normalize, quat_to_matrix
+from vrsim_cli.maths.spatial import quat_normalize, quat_to_matrix
 
 unit = st.floats(-1, 1, allow_nan=False)
 

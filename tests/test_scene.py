@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from vrsim_cli.errors import InputError
-from vrsim_cli.scene import load_scene, parse_scene, scene_schema
+from vrsim_cli.scene.spec import load_scene, parse_scene, scene_schema
 
 GOOD = """
 vrsim: 1
@@ -24,7 +24,7 @@ bodies:
 def problems(write_scene, text: str) -> list[str]:
     path = write_scene(text)
     with pytest.raises(InputError) as info:
-        from vrsim_cli.model import compile_model
+        from vrsim_cli.model.model import compile_model
         compile_model(load_scene(path))
     return [line.replace(str(path), "F") for line in info.value.lines()]
 
@@ -185,7 +185,7 @@ def test_too_many_particles(write_scene):
 
 @pytest.mark.parametrize("vector", ["[1.0e-320, 0, 0, 0]", "[1.0e300, 1.0e300, 0, 0]"])
 def test_tiny_and_huge_quaternions_normalise(write_scene, vector):
-    from vrsim_cli.model import compile_model
+    from vrsim_cli.model.model import compile_model
     model = compile_model(load_scene(write_scene(
         f"vrsim: 1\nduration: 1\nbodies: [{{name: a, mass: 1, orientation: {vector}}}]\n")))
     assert np.isfinite(model.body_quat0).all()

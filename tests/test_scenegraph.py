@@ -11,14 +11,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import SCENARIOS
-from vrsim_cli.keyframes import evaluate
 from vrsim_cli.loop import run
-from vrsim_cli.model import compile_model
-from vrsim_cli.scene import load_scene, parse_scene
-from vrsim_cli.scenegraph import step
-from vrsim_cli.spatial import quat_from_euler_deg, quat_multiply, quat_to_matrix
-from vrsim_cli.state import make_state
-from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.maths.spatial import quat_from_euler_deg, quat_multiply, quat_to_matrix
+from vrsim_cli.model.keyframes import evaluate
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.state import make_state
+from vrsim_cli.scene.spec import load_scene, parse_scene
+from vrsim_cli.stages.scenegraph import step
+from vrsim_cli.tools.trajectory import read_trajectory
 from vrsim_cli.writers import open_writer
 
 

@@ -12,10 +12,10 @@ from mcap.reader import make_reader
 
 from vrsim_cli.errors import OutputError
 from vrsim_cli.loop import run
-from vrsim_cli.model import compile_model
-from vrsim_cli.scene import load_scene
-from vrsim_cli.state import make_state
-from vrsim_cli.trajectory import read_trajectory
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.state import make_state
+from vrsim_cli.scene.spec import load_scene
+from vrsim_cli.tools.trajectory import read_trajectory
 from vrsim_cli.writers import CSV_COLUMNS, open_writer
 from vrsim_cli.writers.atomic import AtomicFile
 

@@ -20,7 +20,7 @@ import click
 
 from vrsim_cli import __version__
 from vrsim_cli.errors import EXIT_INPUT, InputError, SimulationError, VrsimError
-from vrsim_cli.scene import scene_schema
+from vrsim_cli.scene.spec import scene_schema
 
 # Choices come from the shipped schema (cheap to read), so `vrsim --help` need not import
 # numpy; tests check that the model and integrators agree with it.
@@ -144,7 +144,7 @@ class _Progress:
 
 def _output_target(output: str | None, fmt: str | None):
     """(path, format) from -o/--format, or None. Usage errors exit 2."""
-    from vrsim_cli.model import output_format_for
+    from vrsim_cli.model.model import output_format_for
 
     if output is None:
         if fmt:
@@ -189,9 +189,9 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         frames_dir, video, tolerance):
     """Run SCENE_FILE and write its trajectory."""
     from vrsim_cli.loop import run as run_loop
-    from vrsim_cli.model import compile_model
-    from vrsim_cli.scene import load_scene
-    from vrsim_cli.state import make_state
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import load_scene
     from vrsim_cli.writers import open_writer
 
     target = _output_target(output, fmt)
@@ -280,7 +280,7 @@ def _open_frames(model, video: str | None):
 
 
 def _summary(model, result, say, profile: bool, realtime: bool) -> None:
-    from vrsim_cli.state import state_hash
+    from vrsim_cli.model.state import state_hash
 
     state = result.state
     factor = state.t / result.wall_s if result.wall_s > 0 else float("inf")
@@ -308,8 +308,8 @@ def _summary(model, result, say, profile: bool, realtime: bool) -> None:
 @click.option("-q", "--quiet", is_flag=True, help="Print only problems.")
 def validate(scene_files, quiet):
     """Check scene files; report every problem with FILE:LINE:COL."""
-    from vrsim_cli.model import compile_model
-    from vrsim_cli.scene import load_scene
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.scene.spec import load_scene
 
     failed = False
     for file in scene_files:
@@ -339,8 +339,8 @@ def validate(scene_files, quiet):
 @_reports_errors
 def mass_properties(scene_file, as_json):
     """Mass, centre of mass, inertia tensor, principal moments and axes of each body."""
-    from vrsim_cli.mass_properties import format_report, scene_report
-    from vrsim_cli.scene import load_scene
+    from vrsim_cli.model.mass_properties import format_report, scene_report
+    from vrsim_cli.scene.spec import load_scene
 
     scene = load_scene(scene_file)
     rows = scene_report(scene)
@@ -368,7 +368,7 @@ def schema():
 @_reports_errors
 def info(trajectory_file, as_json):
     """Summarise a trajectory file: entities, duration, samples, channels."""
-    from vrsim_cli.trajectory import read_trajectory
+    from vrsim_cli.tools.trajectory import read_trajectory
 
     traj = read_trajectory(trajectory_file)
     times = traj.times
@@ -418,9 +418,9 @@ def collision_proxies(scene_file, samples, as_json):
     Per mesh body and proxy (sphere, aabb, obb, hull, mesh): the Hausdorff distance
     between the proxy's and the mesh's surfaces (sampled, a lower bound; both one-sided
     distances too) and the proxy's volume over the mesh's."""
-    from vrsim_cli.collision.meshes import scene_proxy_report
-    from vrsim_cli.model import compile_model
-    from vrsim_cli.scene import load_scene
+    from vrsim_cli.maths.meshes import scene_proxy_report
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.scene.spec import load_scene
 
     report = scene_proxy_report(compile_model(load_scene(scene_file)), samples)
     if as_json:
@@ -482,8 +482,8 @@ class _Numbers(click.ParamType):
 def walk_table_command(scene_file, fmt, exact, v_max, gamma_max, dt, position, direction,
                        alpha, beta):
     """Print the walk table of slide 5.1, computed by the walk code of `vrsim run`."""
-    from vrsim_cli.scene import load_scene, parse_scene
-    from vrsim_cli.walk_table import SLIDE_ALPHAS, format_table, slide_scene_text, walk_table
+    from vrsim_cli.scene.spec import load_scene, parse_scene
+    from vrsim_cli.tools.walk_table import SLIDE_ALPHAS, format_table, slide_scene_text, walk_table
 
     for name, values in (("--alpha", alpha), ("--beta", beta)):
         if values is not None and not all(abs(v) <= 1.0 for v in values):
@@ -515,7 +515,7 @@ def walk_table_command(scene_file, fmt, exact, v_max, gamma_max, dt, position, d
 @_reports_errors
 def bench(quick, peers, names, repeats, folder):
     """Work-precision benchmark: wall time together with error, against MuJoCo/PyBullet."""
-    from vrsim_cli import bench as bench_module
+    from vrsim_cli.tools.bench import problems as bench_module
     from vrsim_cli.writers.atomic import AtomicFile
 
     known = bench_module.problems()
@@ -593,9 +593,9 @@ def compare(a, b, atol, rtol, angle_tol, overrides, allow_missing_entities, show
 
     Exit 0 when every entity is within tolerance, 1 when not, 2 on unreadable input.
     """
-    from vrsim_cli.compare import Tolerance, TolerancePlan, compare as compare_files
-    from vrsim_cli.compare import format_report
-    from vrsim_cli.trajectory import read_trajectory
+    from vrsim_cli.tools.compare import Tolerance, TolerancePlan, compare as compare_files
+    from vrsim_cli.tools.compare import format_report
+    from vrsim_cli.tools.trajectory import read_trajectory
 
     default = Tolerance(atol, rtol, angle_tol)
     plan = TolerancePlan(default, tuple(

@@ -28,10 +28,18 @@ from typing import Callable
 
 import numpy as np
 
-from vrsim_cli import dynamics, navigation, rigid, scenegraph, sensors
+from vrsim_cli.stages.dynamics import motion as dynamics
+
+from vrsim_cli.stages import navigation
+
+from vrsim_cli.stages.dynamics import rigid
+
+from vrsim_cli.stages import scenegraph
+
 from vrsim_cli.errors import SimulationError
-from vrsim_cli.model import BODY_KINEMATIC, Model
-from vrsim_cli.state import State
+from vrsim_cli.model.model import BODY_KINEMATIC, Model
+from vrsim_cli.model.state import State
+from vrsim_cli.stages import sensors
 
 # Beyond these a run has blown up numerically, not simulated anything physical.
 MAX_POSITION_M = 1e12  # about 7 times the Earth-Sun distance
@@ -105,11 +113,11 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
     last_written = -1
     detect = respond = None
     if model.collision is not None:  # scenes without a collision block pay nothing
-        from vrsim_cli import collision
+        from vrsim_cli.stages import collision
         detect = collision.step
         profile["collision"] = 0.0
         if model.response is not None:  # response detects for itself (impacts, rest)
-            from vrsim_cli.collision import response
+            from vrsim_cli.stages.collision import response
             detect, respond = None, response.step
     # keyframes, drives or parents move bodies: the scene graph stage runs
     animate = model.animation is not None and model.animation.has_motion

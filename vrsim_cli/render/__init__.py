@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import sys
 
-from vrsim_cli.camera import Camera, framing_camera
 from vrsim_cli.errors import InputError
+from vrsim_cli.maths.camera import Camera, framing_camera
 
 INSTALL_HINT = ("install OSMesa and PyOpenGL: `apt-get install libosmesa6` and "
                 "`pip install 'vrsim-cli[render]'`")

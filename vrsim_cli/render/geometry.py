@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vrsim_cli.model import BODY_KINEMATIC
-from vrsim_cli.spatial import quat_to_matrix
+from vrsim_cli.maths.spatial import quat_to_matrix
+from vrsim_cli.model.model import BODY_KINEMATIC
 
 SPHERE, BOX, CYLINDER, QUAD = "sphere", "box", "cylinder", "quad"
 POINT_MASS_RADIUS = 0.025  # m, drawn size of a body without a shape (as in MCAP /scene)

@@ -16,8 +16,8 @@ os.environ["PYOPENGL_PLATFORM"] = "osmesa"
 import numpy as np  # noqa: E402
 from OpenGL import GL, osmesa  # noqa: E402
 
-from vrsim_cli.animation import appearance  # noqa: E402
-from vrsim_cli.camera import Camera  # noqa: E402
+from vrsim_cli.maths.camera import Camera  # noqa: E402
+from vrsim_cli.model.animation import appearance  # noqa: E402
 from vrsim_cli.render.font import draw_text  # noqa: E402
 from vrsim_cli.render.geometry import (PRIMITIVES, body_transforms, draw_list)  # noqa: E402
 

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from vrsim_cli.errors import OutputError
-from vrsim_cli.model import Model
-from vrsim_cli.state import State
+from vrsim_cli.model.model import Model
+from vrsim_cli.model.state import State
 
 CSV_COLUMNS = ("t", "entity", "px", "py", "pz", "qw", "qx", "qy", "qz",
                "vx", "vy", "vz", "wx", "wy", "wz")

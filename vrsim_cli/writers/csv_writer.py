@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from vrsim_cli.model import Model
-from vrsim_cli.state import State
+from vrsim_cli.model.model import Model
+from vrsim_cli.model.state import State
 from vrsim_cli.writers import CSV_COLUMNS, entity_arrays, entity_names
 from vrsim_cli.writers.atomic import AtomicFile
 

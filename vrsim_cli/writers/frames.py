@@ -11,12 +11,12 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from vrsim_cli.camera import Camera
 from vrsim_cli.errors import OutputError
-from vrsim_cli.frames_spec import FramesSpec
-from vrsim_cli.model import Model
-from vrsim_cli.spatial import quat_rotate
-from vrsim_cli.state import State
+from vrsim_cli.maths.camera import Camera
+from vrsim_cli.maths.spatial import quat_rotate
+from vrsim_cli.model.frames import FramesSpec
+from vrsim_cli.model.model import Model
+from vrsim_cli.model.state import State
 from vrsim_cli.writers.atomic import AtomicFile
 from vrsim_cli.writers.png import encode_png
 

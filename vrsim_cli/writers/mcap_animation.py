@@ -11,7 +11,7 @@ the state need not carry them):
 
 from __future__ import annotations
 
-from vrsim_cli.animation import appearance
+from vrsim_cli.model.animation import appearance
 from vrsim_cli.writers.foxglove_schemas import schema_bytes
 
 VRSIM_ANIMATION = {

@@ -11,7 +11,7 @@ Used by `mcap_writer` when the scene has a collision block. At every sample with
 
 from __future__ import annotations
 
-from vrsim_cli.spatial import quat_rotating
+from vrsim_cli.maths.spatial import quat_rotating
 from vrsim_cli.writers.foxglove_schemas import schema_bytes
 
 _NUMBERS3 = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}

@@ -21,9 +21,9 @@ from pathlib import Path
 
 from vrsim_cli import __version__
 from vrsim_cli.errors import OutputError
-from vrsim_cli.model import Model
-from vrsim_cli.spatial import quat_rotating
-from vrsim_cli.state import State
+from vrsim_cli.maths.spatial import quat_rotating
+from vrsim_cli.model.model import Model
+from vrsim_cli.model.state import State
 from vrsim_cli.writers import entity_arrays, entity_names
 from vrsim_cli.writers.atomic import AtomicFile
 from vrsim_cli.writers.foxglove_schemas import (FRAME_TRANSFORMS, SCENE_UPDATE, STATE_COLUMNS,

@@ -16,8 +16,8 @@ import tempfile
 from pathlib import Path
 
 from vrsim_cli.errors import OutputError
-from vrsim_cli.model import Model
-from vrsim_cli.state import State
+from vrsim_cli.model.model import Model
+from vrsim_cli.model.state import State
 from vrsim_cli.writers import entity_arrays, entity_names
 
 # Columns of entity_arrays: px py pz qw qx qy qz ...; TUM wants tx ty tz qx qy qz qw.

@@ -1,0 +1,249 @@
+"""Collision geometry: compile the scene's shapes and proxies into one frozen table.
+
+Layer 2 helper (called by `model.compile_model` only when the scene has a top-level
+`collision` block; imports numpy and, for mesh bodies only, trimesh). One geom per body
+that has a shape and takes part in collision; arrays are over geoms (n_geom).
+
+Geometries (`collision.geometry` of a body, slide 5.4.1: collision geometry may differ
+from the render geometry):
+- exact: the body's own shape (sphere, box, plane, capsule, cylinder; a mesh body is
+  tested as its triangle mesh);
+- for mesh bodies, proxies computed from the render mesh: sphere (the smallest enclosing
+  sphere), aabb (the world-axis-aligned box around the mesh at the body's current
+  orientation, recomputed every step), obb (the smallest oriented box, fixed in the body),
+  hull (the convex hull), mesh (the triangle mesh, same as exact).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vrsim_cli.maths.spatial import quat_multiply, quat_to_matrix
+
+SPHERE, PLANE, BOX, CAPSULE, CYLINDER, CONVEX, MESH = range(7)
+TYPE_NAMES = ("sphere", "plane", "box", "capsule", "cylinder", "convex", "mesh")
+GEOMETRIES = ("exact", "sphere", "aabb", "obb", "hull", "mesh")
+BROAD_PHASES = ("grid", "sap", "brute")
+DEFAULT_TOLERANCE = 1e-3  # m, the slide's epsilon
+_ANALYTIC_TYPE = {"sphere": SPHERE, "plane": PLANE, "box": BOX, "capsule": CAPSULE,
+                  "cylinder": CYLINDER}
+
+
+@dataclass(frozen=True)
+class CollisionModel:
+    """Constants of collision detection. n_geom geoms, one per colliding body.
+
+    geom_body: (n_geom,) int64 body index
+    geom_type: (n_geom,) int64 SPHERE | PLANE | BOX | CAPSULE | CYLINDER | CONVEX | MESH
+    geom_geometry: (n_geom,) str, the scene's `collision.geometry` (exact, sphere, ...)
+    geom_world_aabb: (n_geom,) bool, box re-fitted to the world axes every step (aabb proxy)
+    geom_local_pos: (n_geom, 3) m, geom origin in the body frame
+    geom_local_quat: (n_geom, 4) geom orientation in the body frame [w, x, y, z]
+    geom_radius: (n_geom,) m, sphere, capsule and cylinder radius
+    geom_half: (n_geom, 3) m, box half extents; capsule/cylinder: [r, length/2, r]
+    geom_plane_normal: (n_geom, 3) world-frame unit normal of a half-space n.p <= offset
+    geom_plane_offset: (n_geom,) m
+    geom_rbound: (n_geom,) m, largest distance of a geom point from its body's origin
+        (inf for planes); bounds how fast rotation moves the surface
+    geom_vertices: (n_geom,) tuple of (V, 3) arrays, body frame (convex, mesh, aabb) or None
+    geom_faces: (n_geom,) tuple of (F, 3) int arrays or None
+    """
+
+    tolerance: float  # m
+    broad_phase: str
+    continuous: bool
+    geom_body: np.ndarray
+    geom_type: np.ndarray
+    geom_geometry: tuple
+    geom_world_aabb: np.ndarray
+    geom_local_pos: np.ndarray
+    geom_local_quat: np.ndarray
+    geom_radius: np.ndarray
+    geom_half: np.ndarray
+    geom_plane_normal: np.ndarray
+    geom_plane_offset: np.ndarray
+    geom_rbound: np.ndarray
+    geom_vertices: tuple
+    geom_faces: tuple
+    cache: dict = field(default_factory=dict, compare=False, repr=False)  # fcl objects
+
+    @property
+    def n_geom(self) -> int:
+        return len(self.geom_body)
+
+
+@dataclass(frozen=True)
+class WorldGeoms:
+    """Geoms placed in the world at one instant.
+
+    pos: (n_geom, 3) m; rot: (n_geom, 3, 3) local -> world; half: (n_geom, 3) m
+    (as geom_half, but aabb proxies get their current world extents)."""
+
+    pos: np.ndarray
+    rot: np.ndarray
+    half: np.ndarray
+
+
+def place(cm: CollisionModel, body_pos, body_quat) -> WorldGeoms:
+    """World poses of all geoms from body poses (n_body, 3), (n_body, 4)."""
+    bq = np.asarray(body_quat, dtype=float)[cm.geom_body]
+    brot = quat_to_matrix(bq)
+    pos = np.asarray(body_pos, dtype=float)[cm.geom_body] + \
+        np.einsum("gij,gj->gi", brot, cm.geom_local_pos)
+    # Most geoms sit unturned in their body: then the body's rotation is theirs.
+    turned = np.any(cm.geom_local_quat[:, 1:] != 0.0, axis=1)
+    rot = brot.copy()
+    if turned.any():
+        rot[turned] = quat_to_matrix(quat_multiply(bq[turned], cm.geom_local_quat[turned]))
+    half = cm.geom_half
+    if cm.geom_world_aabb.any():
+        half = half.copy()
+        for g in np.flatnonzero(cm.geom_world_aabb):
+            world = cm.geom_vertices[g] @ brot[g].T
+            lo, hi = world.min(axis=0), world.max(axis=0)
+            half[g] = 0.5 * (hi - lo)
+            pos[g] = pos[g] - brot[g] @ cm.geom_local_pos[g] + 0.5 * (hi + lo)
+            rot[g] = np.eye(3)
+    planes = cm.geom_type == PLANE
+    if planes.any():  # half-spaces are given in the world frame
+        pos[planes] = cm.geom_plane_normal[planes] * cm.geom_plane_offset[planes, None]
+        rot[planes] = np.eye(3)
+    return WorldGeoms(pos, rot, half)
+
+
+def aabbs(cm: CollisionModel, world: WorldGeoms) -> tuple[np.ndarray, np.ndarray]:
+    """World axis-aligned bounding boxes (lo, hi), each (n_geom, 3) m; planes are infinite."""
+    extent = np.einsum("gij,gj->gi", np.abs(world.rot), world.half)
+    kind = cm.geom_type
+    caps = kind == CAPSULE
+    extent[caps] += cm.geom_radius[caps, None]
+    lo, hi = world.pos - extent, world.pos + extent
+    for g in np.flatnonzero((kind == CONVEX) | (kind == MESH)):
+        v = cm.geom_vertices[g] @ world.rot[g].T
+        lo[g], hi[g] = world.pos[g] + v.min(axis=0), world.pos[g] + v.max(axis=0)
+    planes = kind == PLANE
+    lo[planes], hi[planes] = -np.inf, np.inf
+    return lo, hi
+
+
+def subset(cm: CollisionModel, idx) -> CollisionModel:
+    """The geoms `idx` (m,) as a model of their own, each its own body (geom_body =
+    0..m-1), sharing the parent's fcl cache."""
+    idx = np.asarray(idx, dtype=np.int64)
+    return CollisionModel(
+        tolerance=cm.tolerance, broad_phase=cm.broad_phase, continuous=cm.continuous,
+        geom_body=np.arange(len(idx)), geom_type=cm.geom_type[idx],
+        geom_geometry=tuple(cm.geom_geometry[i] for i in idx),
+        geom_world_aabb=cm.geom_world_aabb[idx], geom_local_pos=cm.geom_local_pos[idx],
+        geom_local_quat=cm.geom_local_quat[idx], geom_radius=cm.geom_radius[idx],
+        geom_half=cm.geom_half[idx], geom_plane_normal=cm.geom_plane_normal[idx],
+        geom_plane_offset=cm.geom_plane_offset[idx], geom_rbound=cm.geom_rbound[idx],
+        geom_vertices=tuple(cm.geom_vertices[i] for i in idx),
+        geom_faces=tuple(cm.geom_faces[i] for i in idx), cache=cm.cache)
+
+
+def compile_collision(scene, shapes: list, dim: int, problems: list):
+    """The CollisionModel of a scene with a top-level `collision` block, or None when it is
+    disabled. Bad mesh files become located problems."""
+    top = scene.data.get("collision") or {}
+    if not top.get("enabled", True):
+        return None
+    rows = []
+    for i, (body, shape) in enumerate(zip(scene.data.get("bodies") or [], shapes)):
+        spec = body.get("collision") or {}
+        if shape is None or not spec.get("enabled", True):
+            continue
+        at = ("bodies", i, "collision", "geometry")
+        geometry = spec.get("geometry", "exact")
+        if shape["type"] == "mesh":
+            if shape.get("path") is None:
+                continue  # the missing file is already a problem
+            try:
+                from vrsim_cli.maths.meshes import mesh_geom
+                rows.append(mesh_geom(i, shape, geometry))
+            except ValueError as exc:
+                problems.append(scene.problem(("bodies", i, "shape", "file"), str(exc),
+                                              "vrsim reads OBJ, STL, PLY, GLB and glTF"))
+            continue
+        if geometry != "exact":
+            problems.append(scene.problem(at, f"'{geometry}' is a proxy computed from a "
+                                          f"render mesh; this body is a {shape['type']}",
+                                          "use geometry: exact (analytic shapes are tested "
+                                          "exactly)"))
+            continue
+        rows.append(analytic_geom(i, shape, dim))
+    # Emitted particles (bodies after the scene's list) collide as the spheres they are.
+    for i in range(len(scene.data.get("bodies") or []), len(shapes)):
+        rows.append(analytic_geom(i, shapes[i], dim))
+    return _table(rows, top)
+
+
+def analytic_geom(body: int, shape: dict, dim: int = 3) -> dict:
+    """One geom row for an analytic shape (see CollisionModel for the fields)."""
+    kind = _ANALYTIC_TYPE[shape["type"]]
+    row = _row(body, kind, "exact")
+    if kind == SPHERE:
+        row["radius"] = r = float(shape["radius"])
+        row["half"] = np.full(3, r)
+        row["rbound"] = r
+    elif kind == BOX:
+        half = 0.5 * np.asarray(shape["size"], dtype=float)
+        if dim == 2:  # planar boxes get a z depth that never decides a contact
+            half[2] = max(half[0], half[1], 0.5)
+        row["half"] = half
+        row["rbound"] = float(np.linalg.norm(half))
+    elif kind == PLANE:
+        row["plane_normal"] = np.asarray(shape["normal"], dtype=float)
+        row["plane_offset"] = float(shape["offset"])
+        row["rbound"] = math.inf
+    else:
+        r, h = float(shape["radius"]), 0.5 * float(shape["length"])
+        row["radius"], row["half"] = r, np.array([r, h, r])
+        row["rbound"] = h + r if kind == CAPSULE else math.hypot(h, r)
+    return row
+
+
+def _row(body: int, kind: int, geometry: str) -> dict:
+    return {"body": body, "type": kind, "geometry": geometry, "world_aabb": False,
+            "local_pos": np.zeros(3), "local_quat": np.array([1.0, 0.0, 0.0, 0.0]),
+            "radius": 0.0, "half": np.zeros(3), "plane_normal": np.zeros(3),
+            "plane_offset": 0.0, "rbound": 0.0, "vertices": None, "faces": None}
+
+
+def _frozen(values, shape, dtype=float) -> np.ndarray:
+    out = np.array(values, dtype=dtype).reshape(shape)
+    out.flags.writeable = False
+    return out
+
+
+def _table(rows: list[dict], top: dict) -> CollisionModel:
+    n = len(rows)
+    col = {k: [r[k] for r in rows] for k in _row(0, 0, "").keys()}
+    return CollisionModel(
+        tolerance=float(top.get("tolerance", DEFAULT_TOLERANCE)),
+        broad_phase=str(top.get("broad_phase", "grid")),
+        continuous=bool(top.get("continuous", True)),
+        geom_body=_frozen(col["body"], (n,), np.int64),
+        geom_type=_frozen(col["type"], (n,), np.int64),
+        geom_geometry=tuple(col["geometry"]),
+        geom_world_aabb=_frozen(col["world_aabb"], (n,), bool),
+        geom_local_pos=_frozen(col["local_pos"], (n, 3)),
+        geom_local_quat=_frozen(col["local_quat"], (n, 4)),
+        geom_radius=_frozen(col["radius"], (n,)),
+        geom_half=_frozen(col["half"], (n, 3)),
+        geom_plane_normal=_frozen(col["plane_normal"], (n, 3)),
+        geom_plane_offset=_frozen(col["plane_offset"], (n,)),
+        geom_rbound=_frozen(col["rbound"], (n,)),
+        geom_vertices=tuple(col["vertices"]),
+        geom_faces=tuple(col["faces"]),
+    )
+
+
+def table(rows: list[dict], tolerance: float = DEFAULT_TOLERANCE, broad_phase: str = "grid",
+          continuous: bool = True) -> CollisionModel:
+    """A CollisionModel from geom rows (tests and benchmarks build scenes this way)."""
+    return _table(rows, {"tolerance": tolerance, "broad_phase": broad_phase,
+                         "continuous": continuous})

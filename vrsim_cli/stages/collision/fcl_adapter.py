@@ -1,0 +1,133 @@
+"""python-fcl for the pairs without a closed form here: convex hulls (GJK/EPA), triangle
+meshes (BVH), cylinders, and any pair involving them. Also the exact distance used by
+conservative advancement for such pairs.
+
+fcl is imported inside functions: only scenes that need it pay for it. fcl's contact
+normal points from its first object to its second, like ours. Its capsules and cylinders
+stand along their local z; ours along y, hence a fixed rotation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
+from vrsim_cli.stages.collision.contacts import no_pair_contacts
+
+MAX_CONTACTS = 8  # per pair: enough for a face-on-face mesh contact, bounded output
+# Maps fcl's local z (capsule, cylinder axis) to vrsim's local y: a -90 deg turn about x.
+Z_TO_Y = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+
+
+def _fcl():
+    try:
+        import fcl
+    except ImportError as exc:  # pragma: no cover - python-fcl is a core dependency
+        raise RuntimeError("this collision pair needs the 'python-fcl' package") from exc
+    return fcl
+
+
+def geometry(cm, g: int, half=None):
+    """The fcl collision geometry of geom g (cached unless its size changes per step)."""
+    fcl = _fcl()
+    kind = int(cm.geom_type[g])
+    if kind == BOX and cm.geom_world_aabb[g]:
+        return fcl.Box(*(2.0 * np.asarray(half)))
+    # Hulls and meshes are costly to build: cache them by their vertex array, which
+    # subsets of the model share (continuous.py), so the key stays valid.
+    key = ("fcl", id(cm.geom_vertices[g])) if kind in (CONVEX, MESH) else None
+    if key is not None and key in cm.cache:
+        return cm.cache[key]
+    r, h = float(cm.geom_radius[g]), float(cm.geom_half[g][1])
+    if kind == SPHERE:
+        geom = fcl.Sphere(r)
+    elif kind == BOX:
+        geom = fcl.Box(*(2.0 * cm.geom_half[g]))
+    elif kind == CAPSULE:
+        geom = fcl.Capsule(r, 2.0 * h)
+    elif kind == CYLINDER:
+        geom = fcl.Cylinder(r, 2.0 * h)
+    elif kind == PLANE:
+        geom = fcl.Halfspace(np.asarray(cm.geom_plane_normal[g], float),
+                             float(cm.geom_plane_offset[g]))
+    elif kind == CONVEX:
+        faces = np.asarray(cm.geom_faces[g], np.int64)
+        flat = np.hstack([np.full((len(faces), 1), 3), faces]).ravel()
+        geom = fcl.Convex(np.asarray(cm.geom_vertices[g], float), len(faces), flat)
+    elif kind == MESH:
+        geom = fcl.BVHModel()
+        geom.beginModel(len(cm.geom_vertices[g]), len(cm.geom_faces[g]))
+        geom.addSubModel(np.asarray(cm.geom_vertices[g], float),
+                         np.asarray(cm.geom_faces[g], np.int64))
+        geom.endModel()
+    else:  # pragma: no cover - every type is listed above
+        raise ValueError(f"no fcl geometry for type {kind}")
+    if key is not None:
+        cm.cache[key] = geom
+    return geom
+
+
+def collision_object(cm, world, g: int):
+    fcl = _fcl()
+    kind = int(cm.geom_type[g])
+    if kind == PLANE:  # the half-space is already in world coordinates
+        return fcl.CollisionObject(geometry(cm, g), fcl.Transform())
+    rot = world.rot[g] @ Z_TO_Y if kind in (CAPSULE, CYLINDER) else world.rot[g]
+    return fcl.CollisionObject(geometry(cm, g, world.half[g]),
+                               fcl.Transform(np.asarray(rot, float),
+                                             np.asarray(world.pos[g], float)))
+
+
+def pair_contacts(cm, world, ia, ib, margin):
+    """Contacts of candidate pairs (ia, ib) through fcl; same signature as the closed-form
+    pair functions. Penetrating pairs: fcl's contacts (GJK/EPA for convex shapes, triangle
+    tests for meshes). Separated pairs within the margin: one contact at the closest points."""
+    fcl = _fcl()
+    request = fcl.CollisionRequest(num_max_contacts=MAX_CONTACTS, enable_contact=True)
+    out_pair, out_point, out_normal, out_depth = [], [], [], []
+    for p, (a, b) in enumerate(zip(ia.tolist(), ib.tolist())):
+        oa, ob = collision_object(cm, world, a), collision_object(cm, world, b)
+        result = fcl.CollisionResult()
+        if fcl.collide(oa, ob, request, result):
+            for c in result.contacts:
+                normal = np.asarray(c.normal, float)
+                length = np.linalg.norm(normal)
+                out_pair.append(p)
+                out_point.append(np.asarray(c.pos, float))
+                out_normal.append(normal / length if length > 0 else np.array([0.0, 1, 0]))
+                out_depth.append(float(c.penetration_depth))
+        elif margin > 0.0:
+            d, pa, pb = distance(oa, ob)
+            if d <= margin:
+                out_pair.append(p)
+                out_point.append(0.5 * (pa + pb))
+                out_normal.append((pb - pa) / d if d > 0 else np.array([0.0, 1.0, 0.0]))
+                out_depth.append(-d)
+    if not out_pair:
+        return no_pair_contacts()
+    return (np.array(out_pair, np.int64), np.array(out_point), np.array(out_normal),
+            np.array(out_depth))
+
+
+def distance(oa, ob):
+    """(distance m, closest point on a, on b) of two separated fcl objects; distance <= 0
+    when they touch (fcl then reports no meaningful points)."""
+    fcl = _fcl()
+    result = fcl.DistanceResult()
+    d = fcl.distance(oa, ob, fcl.DistanceRequest(enable_nearest_points=True), result)
+    pa, pb = (np.asarray(p, float) for p in result.nearest_points)
+    return float(d), pa, pb
+
+
+def pair_distance(cm, world, a: int, b: int) -> float:
+    """Signed distance of geoms a and b: the gap when separated, minus fcl's penetration
+    depth when they overlap."""
+    fcl = _fcl()
+    oa, ob = collision_object(cm, world, a), collision_object(cm, world, b)
+    d = distance(oa, ob)[0]
+    if d > 0.0:
+        return d
+    result = fcl.CollisionResult()
+    fcl.collide(oa, ob, fcl.CollisionRequest(num_max_contacts=MAX_CONTACTS,
+                                             enable_contact=True), result)
+    return -max((c.penetration_depth for c in result.contacts), default=0.0)

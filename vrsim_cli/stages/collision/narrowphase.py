@@ -1,0 +1,540 @@
+"""Narrow phase: closed-form contact functions per shape pair, vectorised over pairs, and
+the dispatch table keyed by shape-type pair (Box2D's `manifold.c`, one function per pair).
+
+Every pair function has the signature
+    f(cm, world, ia, ib, margin) -> (pair (k,), point (k, 3), normal (k, 3), depth (k,))
+where ia, ib (P,) are geom indices of P candidate pairs, `pair` says which candidate each
+of the k contacts belongs to, normal points from geom ia to geom ib, and only contacts with
+depth >= -margin are returned. `point` is the midpoint of the two witness points.
+Pairs without a closed form here (cylinder, convex hull, mesh) go to python-fcl
+(`fcl_adapter`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
+from vrsim_cli.stages.collision.contacts import no_pair_contacts
+
+_EPS = 1e-12
+_UP = np.array([0.0, 1.0, 0.0])
+# Box corners in a fixed order: the signs of the half extents.
+_CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+                    dtype=float)
+GOLDEN_ITERATIONS = 48  # bracket shrinks to 0.618^48 ~ 1e-10 of the capsule's length
+
+
+def _dot(u, v):
+    return np.einsum("...i,...i->...", u, v)
+
+
+def _unit(v, fallback=_UP):
+    """Unit vectors (..., 3) and their lengths; zero vectors become `fallback`."""
+    length = np.linalg.norm(v, axis=-1)
+    safe = length > _EPS
+    out = np.where(safe[..., None], v / np.where(safe, length, 1.0)[..., None], fallback)
+    return out, length
+
+
+def _keep(pair, point, normal, depth, margin):
+    mask = depth >= -margin
+    return pair[mask], point[mask], normal[mask], depth[mask]
+
+
+def _spheres(ca, ra, cb, rb):
+    """Contact of spheres (ca, ra) and (cb, rb): point, normal A->B, depth (vectorised)."""
+    n, dist = _unit(cb - ca)
+    depth = ra + rb - dist
+    point = ca + n * (ra - 0.5 * depth)[:, None]
+    return point, n, depth
+
+
+def _segment(world, g):
+    """End points (P, 3) of the axis segment of capsules g."""
+    axis = world.rot[g][:, :, 1] * world.half[g][:, 1:2]
+    return world.pos[g] - axis, world.pos[g] + axis
+
+
+def sphere_sphere(cm, world, ia, ib, margin):
+    # Most candidates of a pile are apart: keep by distance first (the same test as
+    # _keep's depth >= -margin), then compute contacts for the kept only.
+    ra, rb = cm.geom_radius[ia], cm.geom_radius[ib]
+    ca, cb = world.pos[ia], world.pos[ib]
+    pair = np.flatnonzero(ra + rb - np.linalg.norm(cb - ca, axis=-1) >= -margin)
+    point, n, depth = _spheres(ca[pair], ra[pair], cb[pair], rb[pair])
+    return pair, point, n, depth
+
+
+def plane_sphere(cm, world, ia, ib, margin):
+    """Half-space n.p <= o (A) and sphere (B): the normal is the plane's outward n."""
+    n = cm.geom_plane_normal[ia]
+    c, r = world.pos[ib], cm.geom_radius[ib]
+    depth = r - (_dot(n, c) - cm.geom_plane_offset[ia])
+    point = c - n * (r - 0.5 * depth)[:, None]
+    return _keep(np.arange(len(ia)), point, n, depth, margin)
+
+
+def _box_point(c, rot, half, p, r):
+    """Box (c, rot, half) against spheres of radius r at points p (P, 3): point, normal
+    box->sphere, depth. Outside: towards the clamped point; inside: out of the nearest face."""
+    local = np.einsum("pji,pj->pi", rot, p - c)
+    clamped = np.clip(local, -half, half)
+    diff, dist = _unit(local - clamped)
+    inside = dist <= _EPS
+    face_gap = half - np.abs(local)
+    axis = np.argmin(face_gap, axis=1)
+    rows = np.arange(len(p))
+    sign = np.where(local[rows, axis] >= 0.0, 1.0, -1.0)
+    n_in = np.zeros_like(local)
+    n_in[rows, axis] = sign
+    surf_in = local.copy()
+    surf_in[rows, axis] = sign * half[rows, axis]
+    n_local = np.where(inside[:, None], n_in, diff)
+    surface = np.where(inside[:, None], surf_in, clamped)
+    depth = r - np.where(inside, -face_gap[rows, axis], dist)
+    normal = np.einsum("pij,pj->pi", rot, n_local)
+    world_surface = c + np.einsum("pij,pj->pi", rot, surface)
+    # Midpoint between the box surface and the sphere's deepest point p - n r.
+    point = 0.5 * (world_surface + p - normal * r[:, None])
+    return point, normal, depth
+
+
+def box_sphere(cm, world, ia, ib, margin):
+    point, n, depth = _box_point(world.pos[ia], world.rot[ia], world.half[ia], world.pos[ib],
+                                 cm.geom_radius[ib])
+    return _keep(np.arange(len(ia)), point, n, depth, margin)
+
+
+def capsule_sphere(cm, world, ia, ib, margin):
+    a, b = _segment(world, ia)
+    c = world.pos[ib]
+    ab = b - a
+    t = np.clip(_dot(c - a, ab) / np.maximum(_dot(ab, ab), _EPS), 0.0, 1.0)
+    point, n, depth = _spheres(a + t[:, None] * ab, cm.geom_radius[ia], c, cm.geom_radius[ib])
+    return _keep(np.arange(len(ia)), point, n, depth, margin)
+
+
+def cylinder_sphere(cm, world, ia, ib, margin):
+    """Cylinder (A, axis along its local y) and sphere (B): in the cylinder's frame the
+    problem is 2D in (distance from the axis, height), a rectangle of half sizes (r, h):
+    outside, towards the closest point; inside, out of the nearest side or cap."""
+    c, rot = world.pos[ia], world.rot[ia]
+    r, h = cm.geom_radius[ia], world.half[ia][:, 1]
+    local = np.einsum("pji,pj->pi", rot, world.pos[ib] - c)
+    radial_vec = local * [1.0, 0.0, 1.0]
+    radial_dir, radial = _unit(radial_vec, np.array([1.0, 0.0, 0.0]))
+    y = local[:, 1]
+    closest = radial_dir * np.minimum(radial, r)[:, None]
+    closest[:, 1] = np.clip(y, -h, h)
+    diff, dist = _unit(local - closest)
+    inside = dist <= _EPS
+    side_gap, cap_gap = r - radial, h - np.abs(y)
+    to_side = side_gap <= cap_gap
+    sign = np.where(y >= 0.0, 1.0, -1.0)
+    n_in = np.where(to_side[:, None], radial_dir, sign[:, None] * _UP)
+    surf_in = np.where(to_side[:, None], radial_dir * r[:, None] + y[:, None] * _UP,
+                       radial_vec + (sign * h)[:, None] * _UP)
+    n_local = np.where(inside[:, None], n_in, diff)
+    surface = np.where(inside[:, None], surf_in, closest)
+    rs = cm.geom_radius[ib]
+    depth = rs - np.where(inside, -np.minimum(side_gap, cap_gap), dist)
+    normal = np.einsum("pij,pj->pi", rot, n_local)
+    world_surface = c + np.einsum("pij,pj->pi", rot, surface)
+    point = 0.5 * (world_surface + world.pos[ib] - normal * rs[:, None])
+    return _keep(np.arange(len(ia)), point, normal, depth, margin)
+
+
+def plane_box(cm, world, ia, ib, margin):
+    """Half-space against the 8 box corners; up to the 4 deepest corners within margin."""
+    n = cm.geom_plane_normal[ia]
+    corners = world.pos[ib][:, None, :] + np.einsum(
+        "pij,pkj->pki", world.rot[ib], _CORNERS[None] * world.half[ib][:, None, :])
+    depth = cm.geom_plane_offset[ia][:, None] - _dot(n[:, None, :], corners)
+    return _deepest(np.arange(len(ia)), corners, depth, n, margin)
+
+
+def _deepest(pair, points, depth, n, margin, keep: int = 4):
+    """The `keep` deepest of candidate points (P, m, 3) below a plane with normal n (P, 3):
+    contacts at the midpoint between each point and the plane."""
+    order = np.argsort(-depth, axis=1, kind="stable")[:, :keep]
+    rows = np.arange(len(depth))[:, None]
+    depth, points = depth[rows, order], points[rows, order]
+    k = order.shape[1]
+    mid = points + n[:, None, :] * (0.5 * depth)[..., None]
+    return _keep(np.repeat(pair, k), mid.reshape(-1, 3), np.repeat(n, k, axis=0),
+                 depth.reshape(-1), margin)
+
+
+def plane_cylinder(cm, world, ia, ib, margin):
+    """Half-space against the rims of both caps: on each cap the lowest rim point (along
+    -n), its opposite and the two between, so a cylinder standing on a cap gets four
+    points and a tilted one its single lowest rim point."""
+    n = cm.geom_plane_normal[ia]
+    axis = world.rot[ib][:, :, 1]
+    h, r = world.half[ib][:, 1], cm.geom_radius[ib]
+    radial = n - _dot(n, axis)[:, None] * axis
+    fallback = world.rot[ib][:, :, 0]  # any direction in the cap's plane
+    u, _ = _unit(radial, fallback)
+    u = np.where((np.linalg.norm(radial, axis=1) > 1e-9)[:, None], u, fallback)
+    w = np.cross(axis, u)
+    rim = np.stack([-u, u, w, -w], axis=1) * r[:, None, None]  # (P, 4, 3)
+    caps = [world.pos[ib] + s * axis * h[:, None] for s in (-1.0, 1.0)]
+    points = np.concatenate([c[:, None, :] + rim for c in caps], axis=1)  # (P, 8, 3)
+    depth = cm.geom_plane_offset[ia][:, None] - _dot(n[:, None, :], points)
+    return _deepest(np.arange(len(ia)), points, depth, n, margin)
+
+
+def plane_vertices(cm, world, ia, ib, margin):
+    """Half-space against the vertices of a convex hull or mesh: the 4 deepest."""
+    out = []
+    for p, (a, b) in enumerate(zip(ia.tolist(), ib.tolist())):
+        v = world.pos[b] + cm.geom_vertices[b] @ world.rot[b].T
+        n = cm.geom_plane_normal[a]
+        depth = cm.geom_plane_offset[a] - v @ n
+        out.append(_deepest(np.array([p]), v[None], depth[None], n[None], margin))
+    if not out:
+        return no_pair_contacts()
+    return tuple(np.concatenate(x) for x in zip(*out))
+
+
+def plane_capsule(cm, world, ia, ib, margin):
+    """Half-space against both end spheres: two points when the capsule lies flat."""
+    a, b = _segment(world, ib)
+    n = cm.geom_plane_normal[ia]
+    r = cm.geom_radius[ib]
+    ends = np.stack([a, b], axis=1)  # (P, 2, 3)
+    depth = r[:, None] - (_dot(n[:, None, :], ends) - cm.geom_plane_offset[ia][:, None])
+    point = ends - n[:, None, :] * (r[:, None] - 0.5 * depth)[..., None]
+    pair = np.repeat(np.arange(len(ia)), 2)
+    return _keep(pair, point.reshape(-1, 3), np.repeat(n, 2, axis=0), depth.reshape(-1),
+                 margin)
+
+
+def closest_segment_points(p1, q1, p2, q2):
+    """Parameters s, t (P,) of the closest points p1 + s (q1 - p1), p2 + t (q2 - p2) of two
+    segments (Ericson, Real-Time Collision Detection, 5.1.9), vectorised."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e, f = _dot(d1, d1), _dot(d2, d2), _dot(d2, r)
+    c, b = _dot(d1, r), _dot(d1, d2)
+    denom = a * e - b * b
+    safe_a, safe_e = np.maximum(a, _EPS), np.maximum(e, _EPS)
+    s = np.where(denom > _EPS * np.maximum(a * e, _EPS),
+                 np.clip((b * f - c * e) / np.where(denom > 0, denom, 1.0), 0.0, 1.0), 0.0)
+    t = (b * s + f) / safe_e
+    s = np.where(t < 0.0, np.clip(-c / safe_a, 0.0, 1.0), np.where(
+        t > 1.0, np.clip((b - c) / safe_a, 0.0, 1.0), s))
+    t = np.clip(t, 0.0, 1.0)
+    s = np.where(a <= _EPS, 0.0, s)
+    t = np.where(a <= _EPS, np.clip(f / safe_e, 0.0, 1.0), t)
+    t = np.where(e <= _EPS, 0.0, t)
+    s = np.where((e <= _EPS) & (a > _EPS), np.clip(-c / safe_a, 0.0, 1.0), s)
+    return s, t
+
+
+PARALLEL_SIN = 1e-3  # capsule axes closer than this (sine of the angle) count as parallel
+
+
+def _closest_on_segment(p, a, b):
+    ab = b - a
+    t = np.clip(_dot(p - a, ab) / np.maximum(_dot(ab, ab), _EPS), 0.0, 1.0)
+    return a + t[:, None] * ab
+
+
+def capsule_capsule(cm, world, ia, ib, margin):
+    """Closest points of the two axes, then spheres. Parallel axes that overlap along
+    their length (capsules lying side by side) get two contacts, at the two ends of the
+    overlap, so that a response can stop them rolling about the contact line."""
+    a1, b1 = _segment(world, ia)
+    a2, b2 = _segment(world, ib)
+    ra, rb = cm.geom_radius[ia], cm.geom_radius[ib]
+    s, t = closest_segment_points(a1, b1, a2, b2)
+    point, n, depth = _spheres(a1 + s[:, None] * (b1 - a1), ra, a2 + t[:, None] * (b2 - a2),
+                               rb)
+    u, length = _unit(b1 - a1)
+    parallel = np.linalg.norm(np.cross(u, _unit(b2 - a2)[0]), axis=1) < PARALLEL_SIN
+    s_a, s_b = _dot(a2 - a1, u), _dot(b2 - a1, u)  # axis 2's ends along axis 1
+    lo = np.maximum(np.minimum(s_a, s_b), 0.0)
+    hi = np.minimum(np.maximum(s_a, s_b), length)
+    two = parallel & (hi - lo > 1e-9 * (1.0 + length))
+    pairs, points, normals, depths = [np.flatnonzero(~two)], [point[~two]], [n[~two]], \
+        [depth[~two]]
+    if two.any():
+        for end in (lo, hi):
+            p1 = a1[two] + u[two] * end[two, None]
+            q, m, d = _spheres(p1, ra[two], _closest_on_segment(p1, a2[two], b2[two]),
+                               rb[two])
+            pairs.append(np.flatnonzero(two))
+            points.append(q)
+            normals.append(m)
+            depths.append(d)
+    pair = np.concatenate(pairs)
+    order = np.argsort(pair, kind="stable")
+    return _keep(pair[order], np.concatenate(points)[order], np.concatenate(normals)[order],
+                 np.concatenate(depths)[order], margin)
+
+
+def _box_sdf(local, half):
+    q = np.abs(local) - half
+    return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
+
+
+def box_capsule(cm, world, ia, ib, margin):
+    """Box (A) and capsule (B). The box's signed distance is convex, so along the capsule's
+    axis it has one minimum: a golden-section search finds the deepest axis point, and the
+    contact is that of a sphere there. When an end sphere touches the same face (the
+    capsule lies on the box, one end as deep as the deepest point) the end points replace
+    it: a two-point manifold."""
+    c, rot, half = world.pos[ia], world.rot[ia], world.half[ia]
+    a, b = _segment(world, ib)
+    r = cm.geom_radius[ib]
+    la = np.einsum("pji,pj->pi", rot, a - c)
+    lb = np.einsum("pji,pj->pi", rot, b - c)
+    lo, hi = np.zeros(len(ia)), np.ones(len(ia))
+    g = (np.sqrt(5.0) - 1.0) / 2.0
+    for _ in range(GOLDEN_ITERATIONS):
+        x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+        f1 = _box_sdf(la + x1[:, None] * (lb - la), half)
+        f2 = _box_sdf(la + x2[:, None] * (lb - la), half)
+        left = f1 <= f2
+        hi, lo = np.where(left, x2, hi), np.where(left, lo, x1)
+    s = 0.5 * (lo + hi)
+    candidates = np.stack([np.zeros_like(s), s, np.ones_like(s)], axis=1)  # (P, 3)
+    f = _box_sdf(la[:, None] + candidates[..., None] * (lb - la)[:, None], half[:, None])
+    s = candidates[np.arange(len(s)), np.argmin(f, axis=1)]
+    p_min = a + s[:, None] * (b - a)
+    point, n, depth = _box_point(c, rot, half, p_min, r)
+    pe, ne, de = _box_point(np.repeat(c, 2, axis=0), np.repeat(rot, 2, axis=0),
+                            np.repeat(half, 2, axis=0), np.stack([a, b], 1).reshape(-1, 3),
+                            np.repeat(r, 2))
+    same = (_dot(ne, np.repeat(n, 2, axis=0)) > 0.999) & (de >= -margin)
+    # Ends replace the deepest point only when one of them is as deep: otherwise the axis
+    # dips between them (over an edge) and the deepest point is the contact.
+    deepest_end = de.reshape(-1, 2).max(axis=1) >= depth - 1e-12 * (1.0 + np.abs(depth))
+    use_ends = same.reshape(-1, 2).all(axis=1) & deepest_end
+    pair = np.concatenate([np.flatnonzero(~use_ends), np.repeat(np.flatnonzero(use_ends), 2)])
+    take = np.repeat(use_ends, 2)
+    return _keep(pair, np.concatenate([point[~use_ends], pe[take]]),
+                 np.concatenate([n[~use_ends], ne[take]]),
+                 np.concatenate([depth[~use_ends], de[take]]), margin)
+
+
+# ---------------------------------------------------------------------------- box - box
+
+def _face_points(fc, n, u, v, hu, hv, inc_c, inc_n, inc_u, inc_v, inc_hu, inc_hv):
+    """Contact candidates of a reference face (centre fc, outward normal n towards the
+    other box, in-plane axes u, v with half sizes hu, hv) and an incident face (centre,
+    normal, axes, half sizes). In the reference face's 2D coordinates, the overlap polygon
+    of the face rectangle and the projected incident quad has its vertices among: incident
+    corners inside the rectangle, rectangle corners inside the quad, and edge crossings.
+    Returns points (P, 24, 3) on the incident face, heights above the reference face
+    (P, 24) (negative: penetrating) and validity (P, 24)."""
+    signs = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], dtype=float)  # cyclic order
+    inc = (inc_c[:, None] + signs[None, :, :1] * (inc_hu[:, None, None] * inc_u[:, None])
+           + signs[None, :, 1:] * (inc_hv[:, None, None] * inc_v[:, None]))  # (P, 4, 3)
+    rel = inc - fc[:, None]
+    qx, qy = _dot(rel, u[:, None]), _dot(rel, v[:, None])  # (P, 4)
+    hu_, hv_ = hu[:, None], hv[:, None]
+    tol = 1e-9 * (1.0 + np.maximum(hu_, hv_))
+    # (a) incident corners inside the rectangle
+    ax, ay = qx, qy
+    a_ok = (np.abs(qx) <= hu_ + tol) & (np.abs(qy) <= hv_ + tol)
+    # (b) rectangle corners inside the incident quad (convex, either winding)
+    bx, by = signs[None, :, 0] * hu_, signs[None, :, 1] * hv_
+    ex, ey = np.roll(qx, -1, axis=1) - qx, np.roll(qy, -1, axis=1) - qy  # edges (P, 4)
+    cross = ex[:, None, :] * (by[:, :, None] - qy[:, None, :]) - \
+        ey[:, None, :] * (bx[:, :, None] - qx[:, None, :])  # (P, corner, edge)
+    area = (qx * np.roll(qy, -1, axis=1) - np.roll(qx, -1, axis=1) * qy).sum(axis=1)
+    wind = np.where(area >= 0.0, 1.0, -1.0)[:, None, None]
+    b_ok = (cross * wind >= -tol[..., None] * (np.abs(ex) + np.abs(ey))[:, None, :]).all(2)
+    # (c) incident edges crossing the rectangle's edge lines x = +-hu, y = +-hv
+    cx, cy, c_ok = [], [], []
+    for line, along in ((0, 1), (1, 0)):
+        q_line, q_along = (qx, qy) if line == 0 else (qy, qx)
+        e_line, e_along = (ex, ey) if line == 0 else (ey, ex)
+        h_line, h_along = (hu_, hv_) if line == 0 else (hv_, hu_)
+        for side in (-1.0, 1.0):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (side * h_line - q_line) / e_line
+            w = q_along + t * e_along
+            ok = np.isfinite(t) & (t >= 0) & (t <= 1) & (np.abs(w) <= h_along + tol)
+            x = np.broadcast_to(side * h_line, w.shape)
+            cx.append(x if line == 0 else w)
+            cy.append(w if line == 0 else x)
+            c_ok.append(ok)
+    px = np.concatenate([ax, bx] + cx, axis=1)  # (P, 24)
+    py = np.concatenate([ay, by] + cy, axis=1)
+    ok = np.concatenate([a_ok, b_ok] + c_ok, axis=1)
+    px, py = np.where(ok, px, 0.0), np.where(ok, py, 0.0)  # no NaN from parallel edges
+    # Lift each 2D point onto the incident face's plane along n.
+    base = fc[:, None] + px[..., None] * u[:, None] + py[..., None] * v[:, None]
+    inc_d = _dot(inc_n, inc_c)
+    height = (inc_d[:, None] - _dot(base, inc_n[:, None])) / _dot(inc_n, n)[:, None]
+    return base + height[..., None] * n[:, None], height, ok
+
+
+def _reduce(points, depth, keep: int = 4):
+    """At most `keep` well-spread points: the deepest, then farthest-point sampling."""
+    unique = [0]
+    for i in range(1, len(points)):
+        if min(np.linalg.norm(points[i] - points[j]) for j in unique) > 1e-9:
+            unique.append(i)
+    if len(unique) <= keep:
+        return unique
+    chosen = [max(unique, key=lambda i: depth[i])]
+    while len(chosen) < keep:
+        chosen.append(max((i for i in unique if i not in chosen),
+                          key=lambda i: min(np.linalg.norm(points[i] - points[j])
+                                            for j in chosen)))
+    return sorted(chosen)
+
+
+def box_box(cm, world, ia, ib, margin):
+    """Separating-axis test over the 15 axes (3 + 3 face normals, 9 edge crosses), then a
+    contact manifold: face contact -> the overlap of the reference face and the incident
+    face (up to 4 points, each with its own depth); edge contact -> the closest points of
+    the two edges (1 point). Face axes win unless an edge axis is clearly shallower (5 %),
+    as in Box2D and ODE, so resting boxes keep a stable face manifold."""
+    P = len(ia)
+    ca, cb = world.pos[ia], world.pos[ib]
+    A, B = world.rot[ia], world.rot[ib]  # columns: box axes in world
+    ha, hb = world.half[ia], world.half[ib]
+    t = cb - ca
+    axes = [A[:, :, i] for i in range(3)] + [B[:, :, j] for j in range(3)]
+    for i in range(3):
+        for j in range(3):
+            axes.append(np.cross(A[:, :, i], B[:, :, j]))
+    L = np.stack(axes, axis=1)  # (P, 15, 3)
+    L, length = _unit(L)
+    ra = np.einsum("pk,pkn->pn", ha, np.abs(np.einsum("pik,pni->pkn", A, L)))
+    rb = np.einsum("pk,pkn->pn", hb, np.abs(np.einsum("pik,pni->pkn", B, L)))
+    dist = _dot(t[:, None, :], L)
+    overlap = ra + rb - np.abs(dist)
+    overlap[:, 6:][length[:, 6:] < 1e-6] = np.inf  # parallel edges: no axis
+    face = np.argmin(overlap[:, :6], axis=1)
+    edge = 6 + np.argmin(overlap[:, 6:], axis=1)
+    rows = np.arange(P)
+    f_ov, e_ov = overlap[rows, face], overlap[rows, edge]
+    use_edge = e_ov < f_ov - 0.05 * np.abs(f_ov) - 1e-6
+    best = np.where(use_edge, edge, face)
+    depth_sat = overlap[rows, best]
+    hit = depth_sat >= -margin
+    n = L[rows, best] * np.where(dist[rows, best] >= 0.0, 1.0, -1.0)[:, None]  # A -> B
+    out = []
+    # Face contacts: reference face on A (axes 0-2) or on B (axes 3-5).
+    for on_a in (True, False):
+        sel = np.flatnonzero(hit & ~use_edge & ((best < 3) if on_a else (best >= 3)))
+        if not len(sel):
+            continue
+        k = best[sel] % 3
+        R_ref, h_ref, c_ref = (A, ha, ca) if on_a else (B, hb, cb)
+        R_inc, h_inc, c_inc = (B, hb, cb) if on_a else (A, ha, ca)
+        R_ref, h_ref, c_ref = R_ref[sel], h_ref[sel], c_ref[sel]
+        R_inc, h_inc, c_inc = R_inc[sel], h_inc[sel], c_inc[sel]
+        nr = n[sel] if on_a else -n[sel]  # reference face normal, towards the other box
+        r = np.arange(len(sel))
+        fc = c_ref + nr * h_ref[r, k][:, None]
+        u, v = R_ref[r, :, (k + 1) % 3], R_ref[r, :, (k + 2) % 3]
+        hu, hv = h_ref[r, (k + 1) % 3], h_ref[r, (k + 2) % 3]
+        dots = np.einsum("pik,pi->pk", R_inc, nr)
+        m = np.argmax(np.abs(dots), axis=1)
+        sign = -np.where(dots[r, m] >= 0.0, 1.0, -1.0)
+        inc_n = R_inc[r, :, m] * sign[:, None]
+        inc_c = c_inc + inc_n * h_inc[r, m][:, None]
+        pts, height, ok = _face_points(
+            fc, nr, u, v, hu, hv, inc_c, inc_n, R_inc[r, :, (m + 1) % 3],
+            R_inc[r, :, (m + 2) % 3], h_inc[r, (m + 1) % 3], h_inc[r, (m + 2) % 3])
+        depth = -height
+        ok &= depth >= -margin
+        for q in range(len(sel)):
+            idx = np.flatnonzero(ok[q])
+            if not len(idx):
+                # Apart within the margin with faces that do not overlap side by side:
+                # the incident corner nearest to the reference plane, at the axis' gap.
+                corner = int(np.argmax(np.where(np.arange(24) < 4, depth[q], -np.inf)))
+                mid = pts[q, corner] + nr[q] * (0.5 * depth[q, corner])
+                out.append((sel[q:q + 1], mid[None], n[sel[q]][None],
+                            depth_sat[sel[q]:sel[q] + 1]))
+                continue
+            chosen = idx[_reduce(pts[q, idx], depth[q, idx])]
+            mid = pts[q, chosen] + nr[q] * (0.5 * depth[q, chosen])[:, None]
+            out.append((np.full(len(chosen), sel[q]), mid, np.repeat(n[sel[q]][None],
+                        len(chosen), axis=0), depth[q, chosen]))
+    # Edge contacts: the supporting edges of A (towards B) and of B (towards A).
+    sel = np.flatnonzero(hit & use_edge)
+    if len(sel):
+        i, j = (best[sel] - 6) // 3, (best[sel] - 6) % 3
+        r = np.arange(len(sel))
+        nn = n[sel]
+        pa = ca[sel].copy()
+        pb = cb[sel].copy()
+        for k in range(3):
+            sa = np.where(_dot(A[sel][:, :, k], nn) >= 0.0, 1.0, -1.0)
+            sb = np.where(_dot(B[sel][:, :, k], nn) >= 0.0, -1.0, 1.0)
+            pa += np.where((k != i)[:, None], A[sel][:, :, k] * (sa * ha[sel][:, k])[:, None], 0)
+            pb += np.where((k != j)[:, None], B[sel][:, :, k] * (sb * hb[sel][:, k])[:, None], 0)
+        da = A[sel][r, :, i] * ha[sel][r, i][:, None]
+        db = B[sel][r, :, j] * hb[sel][r, j][:, None]
+        s, tt = closest_segment_points(pa - da, pa + da, pb - db, pb + db)
+        wa = pa - da + (2 * s)[:, None] * da
+        wb = pb - db + (2 * tt)[:, None] * db
+        out.append((sel, 0.5 * (wa + wb), nn, depth_sat[sel]))
+    if not out:
+        return no_pair_contacts()
+    pair, point, normal, depth = (np.concatenate(x) for x in zip(*out))
+    order = np.argsort(pair, kind="stable")
+    return pair[order], point[order], normal[order], depth[order]
+
+
+_EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)
+                   if np.count_nonzero(_CORNERS[i] != _CORNERS[j]) == 1])  # the 12 edges
+
+
+def box_box_distance(world, ia, ib):
+    """Exact distance (P,) m between separated boxes; <= 0 when they touch or overlap.
+
+    The closest points of two convex polyhedra can be taken on a vertex and the other
+    solid, or on two edges (faces and parallel edges reach their minimum there too), so
+    the distance is the least of: the 16 corners' distances to the other box and the
+    144 edge-edge distances. Used by continuous detection; fcl's GJK is not used here
+    because it errs in flush configurations (two aligned boxes: 1.118 m for 1.1 m)."""
+    ca, cb = world.pos[ia], world.pos[ib]
+    A, B = world.rot[ia], world.rot[ib]
+    ha, hb = world.half[ia], world.half[ib]
+    corners_a = ca[:, None] + np.einsum("pij,pkj->pki", A, _CORNERS[None] * ha[:, None])
+    corners_b = cb[:, None] + np.einsum("pij,pkj->pki", B, _CORNERS[None] * hb[:, None])
+
+    def to_box(points, c, rot, half):
+        local = np.einsum("pji,pkj->pki", rot, points - c[:, None])
+        return _box_sdf(local, half[:, None]).min(axis=1)
+
+    d = np.minimum(to_box(corners_a, cb, B, hb), to_box(corners_b, ca, A, ha))
+    p1 = np.repeat(corners_a[:, _EDGES[:, 0]], 12, axis=1)  # (P, 144, 3)
+    q1 = np.repeat(corners_a[:, _EDGES[:, 1]], 12, axis=1)
+    p2 = np.tile(corners_b[:, _EDGES[:, 0]], (1, 12, 1))
+    q2 = np.tile(corners_b[:, _EDGES[:, 1]], (1, 12, 1))
+    shape = p1.shape
+    s, t = closest_segment_points(*(x.reshape(-1, 3) for x in (p1, q1, p2, q2)))
+    gap = (p1.reshape(-1, 3) + s[:, None] * (q1 - p1).reshape(-1, 3)) - \
+        (p2.reshape(-1, 3) + t[:, None] * (q2 - p2).reshape(-1, 3))
+    d = np.minimum(d, np.linalg.norm(gap, axis=1).reshape(shape[:2]).min(axis=1))
+    return d
+
+
+# Keyed by (type of A, type of B). A pair found as (B, A) is computed swapped and its
+# normals are flipped (`detect.narrow_phase`).
+DISPATCH = {
+    (SPHERE, SPHERE): sphere_sphere,
+    (PLANE, SPHERE): plane_sphere,
+    (BOX, SPHERE): box_sphere,
+    (CAPSULE, SPHERE): capsule_sphere,
+    (PLANE, BOX): plane_box,
+    (PLANE, CAPSULE): plane_capsule,
+    (CAPSULE, CAPSULE): capsule_capsule,
+    (BOX, CAPSULE): box_capsule,
+    (BOX, BOX): box_box,
+    (PLANE, CYLINDER): plane_cylinder,
+    (CYLINDER, SPHERE): cylinder_sphere,
+    (PLANE, CONVEX): plane_vertices,
+    (PLANE, MESH): plane_vertices,
+}

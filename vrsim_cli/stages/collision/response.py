@@ -1,0 +1,467 @@
+"""Loop stage 2.3, response half (slide 5.4.2): what contacts do to the motion.
+
+`step(model, before, after, advance) -> State` replaces the free-flight state `after`
+(one physics step from `before`) by the state with collision response:
+
+1. **Event location** (isolated impacts). Pairs that come into contact during the step
+   (separated at its start, penetrating at its end or swept through by continuous
+   detection), and touching pairs that approach faster than `rest_speed`, are impacts.
+   The first time of impact tau is the root of G(tau) = min over those pairs of their
+   signed distance after advancing the *integrator itself* by tau from the step's start
+   (`advance`), found by the Illinois variant of regula falsi to 1e-13 of the step. The
+   bodies are advanced to tau, the impulses are applied there (`solver.resolve_impacts`),
+   and the rest of the step is integrated from that state; repeated for up to MAX_EVENTS
+   impacts per step. With an integrator that is exact for constant acceleration (rk4,
+   verlet, dopri5), a ball under gravity follows its parabola exactly and its distance to
+   a plane is a quadratic in tau whose root is found to round-off: bounce times and apex
+   heights h_k = h0 eps^(2k) are exact at any dt. (euler and symplectic-euler are not
+   exact in free flight, O(dt), whatever the response does.) When the pairs are apart
+   again at the step's end (swept through, or a ball that bounced and lands again), G is
+   sampled at 16 points of the step for the first overlap, which then closes the bracket
+   (an overlap shorter than dt/16 can be missed; it is then a resting contact).
+2. **Resting contact** at the end of the step: sequential impulses with friction and warm
+   starting, shock propagation and position correction (`solver.solve_resting`,
+   `solver.correct_positions`).
+
+Responses per pair (`response_model`): `impulse` (above), `slide` (the slide's
+v <- v - (v.n) n for each body moving into the other, then pushed out of penetration),
+`stop` (a body keeps its last non-colliding pose, at rest: at an impact it stops at the
+time of impact; in a resting contact it goes back to its pose after the step's last
+impact, or at the step's start), `none`.
+
+The state's `contacts` are the contacts of the end of the step (before the position
+correction) followed by the impact contacts (`toi` = time of impact after the step's
+start); `contact_impulse` holds the impulse (N s, world, on B) of each.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vrsim_cli.maths.rotation import cross, exp_so3, quat_from_matrix
+from vrsim_cli.model.collision import BOX, aabbs, place
+from vrsim_cli.model.model import BODY_DYNAMIC
+from vrsim_cli.model.response import IMPULSE, NONE, SLIDE, STOP
+from vrsim_cli.stages.collision import jacobi, solver
+from vrsim_cli.stages.collision.contacts import Contacts
+from vrsim_cli.stages.collision.continuous import pair_distance, swept_contacts
+from vrsim_cli.stages.collision.detect import broad_phase, narrow_phase, planar, to_contacts
+
+MAX_EVENTS = 64  # impacts located per step; later ones in the step go to the resting solver
+ROOT_ITERATIONS = 200
+ROOT_TOLERANCE = 1e-13  # of the step: the time of impact is found to this fraction
+LEAVE_SAMPLES = 16  # a pair that just bounced is looked for apart at h/16, 2h/16, ...
+WARM_RADIUS = 0.02  # m: a contact within this of last step's (same pair) inherits its impulse
+
+
+def detect(model, state) -> Contacts:
+    """All contacts of `state` with a gap of at most collision.tolerance, as
+    `collision.detect`, but with the broad phase's boxes grown by the tolerance too: a
+    resting contact that position correction left 1e-10 m apart must stay a contact
+    (unpadded boxes would drop it, and it would come back next step as a new impact)."""
+    cm = model.collision
+    if cm.n_geom == 0:
+        return Contacts.empty()
+    world = place(cm, state.body_pos, state.body_quat)
+    lo, hi = aabbs(cm, world)
+    ia, ib = broad_phase(model, lo - cm.tolerance, hi + cm.tolerance, state.step)
+    c = to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, cm.tolerance))
+    return planar(c) if model.dimension == 2 else c
+
+
+def bodies_of(model, state) -> solver.Bodies:
+    """The solver's working view of a state: inverse masses (0 unless dynamic and in the
+    scene), world inverse inertia tensors R I^-1 R^T of the freely turning bodies."""
+    moving = (model.body_type == BODY_DYNAMIC) & (model.body_emit_step <= state.step)
+    inv_mass = np.where(moving, model.body_inv_mass, 0.0)
+    n = model.n_body
+    inv_inertia = np.zeros((n, 3, 3))
+    rigid = model.rigid
+    if rigid is not None and rigid.n_rot:
+        R = state.rot_matrix
+        world = R @ rigid.rot_inv_inertia @ np.swapaxes(R, -1, -2)
+        inv_inertia[rigid.rot_index] = world  # kinematic: rot_inv_inertia is 0
+    return solver.Bodies(inv_mass, inv_inertia, state.body_vel.copy(),
+                         state.body_angvel.copy(), state.body_pos)
+
+
+def write_back(model, state, bodies: solver.Bodies, stopped=None, dpos=None, dtheta=None):
+    """The state with the bodies' velocities (and position corrections) applied."""
+    movable = bodies.inv_mass > 0.0
+    vel = np.where(movable[:, None], bodies.vel, state.body_vel)
+    changes = {}
+    rigid = model.rigid
+    R, L = state.rot_matrix, state.rot_angmom
+    pos, quat, angvel = state.body_pos, state.body_quat, state.body_angvel
+    if stopped is not None and stopped.any():
+        vel = np.where(stopped[:, None], 0.0, vel)
+    if dpos is not None:
+        pos = pos + np.where(movable[:, None], dpos, 0.0)
+    if rigid is not None and rigid.n_rot:
+        idx = rigid.rot_index
+        free = ~rigid.rot_kinematic
+        # Impulses changed omega by I(t)^-1 (sum p x P); L changes by I(t) times that.
+        inertia = R @ rigid.rot_inertia @ np.swapaxes(R, -1, -2)
+        dw = bodies.angvel[idx] - state.body_angvel[idx]
+        L = L + np.where(free[:, None], np.einsum("kij,kj->ki", inertia, dw), 0.0)
+        if stopped is not None:
+            L = np.where(stopped[idx, None] & free[:, None], 0.0, L)
+        if dtheta is not None and np.abs(dtheta[idx]).max() > 0.0:
+            turn = np.where(free[:, None], dtheta[idx], 0.0)
+            R = exp_so3(turn) @ R
+            quat = quat.copy()
+            quat[idx] = quat_from_matrix(R)
+        inv = R @ rigid.rot_inv_inertia @ np.swapaxes(R, -1, -2)
+        w = np.einsum("kij,kj->ki", inv, L)
+        angvel = angvel.copy()
+        angvel[idx] = np.where(free[:, None], w, angvel[idx])
+        changes.update(rot_matrix=R, rot_angmom=L)
+    return state.replace(body_pos=pos, body_vel=vel, body_quat=quat, body_angvel=angvel,
+                         **changes)
+
+
+def _contact_set(model, bodies, c: Contacts, rows=None):
+    rows = np.arange(len(c)) if rows is None else rows
+    a, b = c.body_a[rows], c.body_b[rows]
+    _, eps, mu = model.response.pair_values(a, b)
+    return solver.prepare(bodies, a, b, c.point[rows], c.normal[rows], c.depth[rows], eps,
+                          mu)
+
+
+def _modes(model, c: Contacts):
+    return model.response.pair_values(c.body_a, c.body_b)[0]
+
+
+def _approach(bodies, c: Contacts, rows) -> np.ndarray:
+    """(len(rows),) m/s relative normal velocity at the contact points (< 0: approaching)."""
+    a, b = c.body_a[rows], c.body_b[rows]
+    point, n = c.point[rows], c.normal[rows]
+    vr = bodies.vel[b] + cross(bodies.angvel[b], point - bodies.pos[b]) - \
+        bodies.vel[a] - cross(bodies.angvel[a], point - bodies.pos[a])
+    return (vr * n).sum(1)
+
+
+# ------------------------------------------------------------------------ impacts
+
+
+def _slide(bodies, c: Contacts, rows) -> None:
+    """The slide's v <- v - (v.n) n for each movable body moving into the other."""
+    for k in rows.tolist():
+        n = c.normal[k]
+        for body, sign in ((c.body_b[k], -1.0), (c.body_a[k], 1.0)):
+            vn = float(bodies.vel[body] @ n)
+            if bodies.inv_mass[body] > 0.0 and sign * vn > 0.0:
+                bodies.vel[body] = bodies.vel[body] - vn * n
+
+
+def apply_impacts(model, state, c: Contacts):
+    """Impulses (or stop / slide) for the contacts `c` of `state` at an instant of impact.
+    Returns (new state, impulse (k, 3) N s on B per contact)."""
+    bodies = bodies_of(model, state)
+    mode = _modes(model, c)
+    impulse = np.zeros((len(c), 3))
+    approaching = np.zeros(len(c), bool)
+    if len(c):
+        approaching = _approach(bodies, c, np.arange(len(c))) < -solver.APPROACH_EPS
+    stopped = np.zeros(model.n_body, bool)
+    stop = np.flatnonzero((mode == STOP) & approaching)
+    for body in np.concatenate([c.body_a[stop], c.body_b[stop]]).tolist():
+        stopped[body] = bodies.inv_mass[body] > 0.0
+    bodies.vel[stopped] = 0.0
+    bodies.angvel[stopped] = 0.0
+    _slide(bodies, c, np.flatnonzero((mode == SLIDE) & approaching))
+    rows = np.flatnonzero(mode == IMPULSE)
+    if len(rows):
+        cs = _contact_set(model, bodies, c, rows)
+        impulse[rows] = solver.resolve_impacts(bodies, cs, model.response.rest_speed)
+    return write_back(model, state, bodies, stopped), impulse
+
+
+def _pair_geoms(model, a, b):
+    cm = model.collision
+    body_geom = np.full(model.n_body, -1, np.int64)
+    body_geom[cm.geom_body] = np.arange(cm.n_geom)
+    return body_geom[a], body_geom[b]
+
+
+def _signed_gaps(cm, world, ia, ib):
+    """Signed gap (P,) m of geom pairs, <= 0 exactly when they touch or overlap (only the
+    sign and continuity matter for the root): detection's pair distance, but box pairs
+    through the separating-axis test (its largest separation is 0 exactly at the touch),
+    which agrees with fcl where the corner/edge distance does not."""
+    boxes = (cm.geom_type[ia] == BOX) & (cm.geom_type[ib] == BOX)
+    d = np.full(len(ia), np.inf)
+    rest = np.flatnonzero(~boxes)
+    if len(rest):
+        d[rest] = pair_distance(cm, world, ia[rest], ib[rest])
+    sat = np.flatnonzero(boxes)
+    if len(sat):
+        pair, _, _, depth = narrow_phase(cm, world, ia[sat], ib[sat], np.inf)
+        np.minimum.at(d, sat[pair], -depth)
+    return d
+
+
+def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=None):
+    """Time tau in [0, h] of the first impact of the motion from s (free flight to `end`),
+    or None. Candidates: pairs penetrating at the end that did not touch at s; touching
+    pairs approaching faster than rest_speed (impact now or soon); touching pairs leaving
+    faster than rest_speed (a ball that just bounced may land again within the step);
+    pairs swept through (continuous detection). c0, c1: the contacts of s and `end` when
+    the caller has them."""
+    rm, cm = model.response, model.collision
+    c1 = detect(model, end) if c1 is None else c1
+    pairs = []
+    fast, leaving = set(), set()
+    if touching:
+        c0 = detect(model, s) if c0 is None else c0
+        keep = np.flatnonzero(_modes(model, c0) != NONE)
+        if len(keep):
+            vn = _approach(bodies_of(model, s), c0, keep)
+            for k, v in zip(keep.tolist(), vn.tolist()):
+                pair = (int(c0.body_a[k]), int(c0.body_b[k]))
+                if v < -rm.rest_speed:
+                    fast.add(pair)
+                elif v > rm.rest_speed:
+                    leaving.add(pair)
+    leaving -= fast
+    mode1 = _modes(model, c1)
+    for k in np.flatnonzero((mode1 != NONE) & (c1.depth >= 0.0)).tolist():
+        pair = (int(c1.body_a[k]), int(c1.body_b[k]))
+        if pair not in touching or pair in fast or pair in leaving:
+            pairs.append(pair)
+    hi = h
+    if cm.continuous:
+        swept = swept_contacts(model, s, end, c1.pairs() | touching)
+        keep = np.flatnonzero(_modes(model, swept) != NONE)
+        for k in keep.tolist():
+            pairs.append((int(swept.body_a[k]), int(swept.body_b[k])))
+    if not pairs:
+        return None
+    pairs = sorted(set(pairs))
+    ia, ib = _pair_geoms(model, np.array([p[0] for p in pairs]), np.array([p[1] for p in
+                                                                            pairs]))
+
+    def gaps(tau):
+        st = s if tau == 0.0 else advance(model, s, tau)
+        return _signed_gaps(cm, place(cm, st.body_pos, st.body_quat), ia, ib)
+
+    def gap(tau):
+        return float(gaps(tau).min())
+
+    d0 = gaps(0.0)
+    back = np.array([p in leaving for p in pairs])
+    if (d0[~back] <= 0.0).any():
+        return 0.0
+    lo, g_lo = 0.0, float(d0.min())
+    if g_lo <= 0.0:  # a leaving pair still touches: find when it is apart, then the root
+        for j in range(1, LEAVE_SAMPLES + 1):
+            lo = h * j / LEAVE_SAMPLES
+            g_lo = gap(lo)
+            if g_lo > 0.0:
+                break
+        else:
+            return None
+    g_hi = gap(hi)
+    if g_hi > 0.0:  # apart at hi (swept through, or a leaving pair not back): look for
+        start = lo  # the first sample of the step at which they overlap
+        for j in range(1, LEAVE_SAMPLES + 1):
+            t = start + (h - start) * j / LEAVE_SAMPLES
+            g = gap(t)
+            if g <= 0.0:
+                hi, g_hi = t, g
+                break
+            lo, g_lo = t, g
+        else:
+            return None  # they pass within the tolerance without touching
+    side = 0
+    for _ in range(ROOT_ITERATIONS):
+        if hi - lo <= ROOT_TOLERANCE * h:  # (not at g = 0: a distance may be 0 for
+            break                             # any overlap, so 0 is not yet the touch)
+        m = hi - g_hi * (hi - lo) / (g_hi - g_lo)
+        if not lo < m < hi:
+            m = 0.5 * (lo + hi)
+        g = gap(m)
+        if g > 0.0:
+            lo, g_lo = m, g
+            if side == 1:
+                g_hi *= 0.5  # Illinois: halve the stale end so the bracket shrinks on both
+            side = 1
+        else:
+            hi, g_hi = m, g
+            if side == -1:
+                g_lo *= 0.5
+            side = -1
+    return hi
+
+
+# ------------------------------------------------------------------------ resting
+
+
+def _warm_start(before, c: Contacts, model):
+    """Impulses (k, 3) N s of last step's resting contacts matched to these (same pair,
+    point within WARM_RADIUS; 0 for new contacts), or None without a last step."""
+    old, imp = before.contacts, before.contact_impulse
+    if old is None or imp is None or not len(old) or not len(c):
+        return None
+    n = model.n_body
+    key_new = c.body_a * n + c.body_b
+    key_old = old.body_a * n + old.body_b
+    dist = np.linalg.norm(c.point[:, None, :] - old.point[None, :, :], axis=2)
+    dist = np.where(key_new[:, None] == key_old[None, :], dist, np.inf)
+    dist = np.where(np.isnan(old.toi)[None, :], dist, np.inf)  # not the impact rows
+    best = np.argmin(dist, axis=1)
+    ok = dist[np.arange(len(c)), best] <= WARM_RADIUS
+    vec = np.where(ok[:, None], imp[best], 0.0)
+    return vec
+
+
+def _warm_start_keyed(before, c: Contacts, model):
+    """As `_warm_start`, matching by pair and rank within the pair instead of by distance
+    (linear in the number of contacts, for stepped impacts: a pair keeps its number of
+    contact points from step to step while it rests, and narrow phase orders them)."""
+    old, imp = before.contacts, before.contact_impulse
+    if old is None or imp is None or not len(old) or not len(c):
+        return None
+    keep = np.isnan(old.toi)
+
+    def keys(a, b):
+        pair = a * model.n_body + b  # contacts come sorted by pair
+        first = np.searchsorted(pair, pair, side="left")
+        return pair * 64 + np.minimum(np.arange(len(pair)) - first, 63)
+
+    key_old = keys(old.body_a[keep], old.body_b[keep])
+    if not len(key_old):
+        return None
+    key_new = keys(c.body_a, c.body_b)
+    row = np.minimum(np.searchsorted(key_old, key_new), len(key_old) - 1)
+    hit = key_old[row] == key_new
+    return np.where(hit[:, None], imp[keep][row], 0.0)
+
+
+def resting(model, start, state, last=None, c=None):
+    """Resting contact at the end of a step (`state`; `start`: the step's start, for warm
+    starting; `last`: the state after the step's last impact, default `start`: a `stop`
+    body goes back to its pose there, the last pose known not to collide). Returns the
+    corrected state with contacts and impulses. c: the contacts of `state` if known."""
+    last = start if last is None else last
+    rm = model.response
+    c = detect(model, state) if c is None else c
+    mode, pair_eps, pair_mu = rm.pair_values(c.body_a, c.body_b)
+    impulse = np.zeros((len(c), 3))
+    bodies = bodies_of(model, state)
+    # stop: a body in penetrating contact goes back to its pose at the step's start, at rest
+    stop = np.flatnonzero((mode == STOP) & (c.depth > 0.0))
+    stopped = np.zeros(model.n_body, bool)
+    for body in np.concatenate([c.body_a[stop], c.body_b[stop]]).tolist():
+        stopped[body] = bodies.inv_mass[body] > 0.0
+    dpos = np.zeros((model.n_body, 3))
+    if stopped.any():
+        dpos[stopped] = last.body_pos[stopped] - state.body_pos[stopped]
+    slide = np.flatnonzero(mode == SLIDE)
+    if len(slide):
+        _slide(bodies, c, slide[_approach(bodies, c, slide) < 0.0])
+        for k in slide[c.depth[slide] > 0.0].tolist():  # out along n, shared if both move
+            a, b = int(c.body_a[k]), int(c.body_b[k])
+            share = 0.5 if bodies.inv_mass[a] > 0 and bodies.inv_mass[b] > 0 else 1.0
+            for body, sign in ((b, 1.0), (a, -1.0)):
+                if bodies.inv_mass[body] > 0.0:
+                    push = sign * share * c.depth[k] * c.normal[k]
+                    dpos[body] = np.where(np.abs(push) > np.abs(dpos[body]), push,
+                                          dpos[body])
+    rows = np.flatnonzero(mode == IMPULSE)
+    stepped = rm.impacts == "stepped"
+    if len(rows) and not stepped:  # a gap closing fast is the next step's impact, located
+        closing = (c.depth[rows] < 0.0) & (_approach(bodies, c, rows) < -rm.rest_speed)
+        rows = rows[~closing]
+    dtheta = np.zeros((model.n_body, 3))
+    if len(rows):
+        sub = Contacts(*(getattr(c, f)[rows] for f in (
+            "body_a", "body_b", "point", "normal", "depth", "toi")))
+        if stepped:  # impacts and rest in one parallel solve (restitution included)
+            system = jacobi.System(bodies, sub.body_a, sub.body_b, sub.point, sub.normal,
+                                   sub.depth)
+            eps, mu = pair_eps[rows], pair_mu[rows]
+            # a resting contact comes in at |g| dt after a free-flight step: no bounce
+            bounce_speed = max(rm.rest_speed, 2.0 * float(np.linalg.norm(model.gravity)) *
+                               model.dt)
+            impulse[rows] = jacobi.solve(bodies, system, eps, mu, model.dt, bounce_speed,
+                                         rm.iterations, _warm_start_keyed(start, sub, model))
+            dp, dth = jacobi.correct_positions(system, rm.slop, rm.position_iterations)
+        else:
+            cs = _contact_set(model, bodies, c, rows)
+            warm = _warm_start(start, sub, model)
+            impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm)
+            dp, dth = solver.correct_positions(bodies, cs, rm.slop, rm.position_iterations)
+        dpos += dp
+        dtheta += dth
+    if stopped.any():
+        bodies.vel[stopped] = 0.0
+        dtheta[stopped] = 0.0
+    new = write_back(model, state, bodies, stopped, dpos, dtheta)
+    if stopped.any() and model.rigid is not None and model.rigid.n_rot:
+        new = _restore_orientation(model, last, new, stopped)
+    return new, c, impulse
+
+
+def _restore_orientation(model, start, state, stopped):
+    rigid = model.rigid
+    idx = rigid.rot_index
+    back = stopped[idx]
+    R = np.where(back[:, None, None], start.rot_matrix, state.rot_matrix)
+    quat = np.where(stopped[:, None], start.body_quat, state.body_quat)
+    angvel = np.where(stopped[:, None], 0.0, state.body_angvel)
+    return state.replace(rot_matrix=R, body_quat=quat, body_angvel=angvel)
+
+
+# ------------------------------------------------------------------------ the stage
+
+
+def step(model, before, after, advance):
+    """One physics step with collision response. `after`: the free-flight step from
+    `before` (dynamics and scene graph); `advance(model, state, h)`: the dynamics
+    integrated over h <= dt from `state` (the loop passes `dynamics.advance`)."""
+    if model.response.impacts == "stepped":  # no impact is located: rest solves all
+        new, c, impulse = resting(model, before, after)
+        return new.replace(contacts=c, contact_impulse=impulse)
+    prev = before.contacts if before.contacts is not None else detect(model, before)
+    at_end = np.isnan(prev.toi)  # the impact rows are from earlier in the last step
+    prev = Contacts(*(getattr(prev, f)[at_end] for f in (
+        "body_a", "body_b", "point", "normal", "depth", "toi")))
+    touching = prev.pairs()
+    s, end = before, after
+    t_end = after.t
+    event_contacts, event_impulses = [], []
+    # Last step's contacts stand for this step's start (before its position correction,
+    # which moved them by at most the penetration): they only sort pairs into touching,
+    # approaching and leaving. The end's contacts serve the impact search and, when no
+    # impact cuts the step, the resting solver.
+    c0, c_end = prev, detect(model, after)
+    for _ in range(MAX_EVENTS):
+        h = t_end - s.t
+        if h <= 0.0:
+            break
+        tau = _first_impact(model, s, end, h, touching, advance, c0, c_end)
+        if tau is None:
+            break
+        at = s if tau == 0.0 else advance(model, s, tau)
+        c = detect(model, at)
+        at, imp = apply_impacts(model, at, c)
+        event_contacts.append(Contacts(c.body_a, c.body_b, c.point, c.normal, c.depth,
+                                       np.full(len(c), at.t - before.t)))
+        event_impulses.append(imp)
+        touching = c.pairs()
+        s, c0 = at, c
+        end = advance(model, s, t_end - s.t)
+        c_end = None
+    if s is not before:  # the step was cut: kinematic bodies follow the scene graph
+        kin = model.body_type != BODY_DYNAMIC
+        end = end.replace(step=after.step, t=after.t,
+                          body_pos=np.where(kin[:, None], after.body_pos, end.body_pos),
+                          body_vel=np.where(kin[:, None], after.body_vel, end.body_vel),
+                          body_quat=np.where(kin[:, None], after.body_quat, end.body_quat),
+                          body_angvel=np.where(kin[:, None], after.body_angvel,
+                                               end.body_angvel))
+    new, c, impulse = resting(model, before, end, s, c_end if s is before else None)
+    contacts = Contacts.concatenate([c] + event_contacts)
+    impulses = np.concatenate([impulse] + event_impulses) if event_impulses else impulse
+    return new.replace(contacts=contacts, contact_impulse=impulses.reshape(-1, 3))

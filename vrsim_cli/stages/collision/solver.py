@@ -1,0 +1,406 @@
+"""Contact solvers of the response stage: isolated impacts and resting/stacked contact.
+
+Two solvers share the impulse law of slide 5.4.2 (`vrsim_cli.impulse`) and a working set
+of body velocities (`Bodies`):
+
+- `resolve_impacts`: the impulses at one instant of impact (event-located by
+  `response.py`). Contacts are processed one at a time, always the one approaching
+  fastest, each with its own restitution (Guendelman, Bridson & Fedkiw 2003, propagation
+  of impulses): a chain of touching bodies (Newton's cradle) passes the impulse along in
+  order. Every impulse is the slide's exact alpha n plus Coulomb friction, so linear and
+  angular momentum are conserved to round-off and eps = 1 conserves energy pairwise.
+  After MAX_ELASTIC_PASSES impulses per contact, restitution drops to 0 so the loop ends.
+
+- `solve_resting`: sequential impulses (Catto, GDC 2006; Box2D) for the contacts at the
+  end of a step, restitution 0: accumulated normal impulses clamped to >= 0, friction
+  clamped to the Coulomb cone |lambda_t| <= mu lambda_n, warm started from the previous
+  step. Contacts are split into colours in which no movable body appears twice (Box2D v3's
+  graph colouring), so each colour is one vectorised numpy update and colours run in
+  Gauss-Seidel order. Then shock propagation (Guendelman et al. 2003): the bodies are
+  layered by their contact distance from static or kinematic ones, and one pass from the
+  ground up treats the lower body of each contact as infinite mass, first for the normal
+  velocities, then for the penetration (linearised non-linear Gauss-Seidel on positions).
+  This makes a stack or a heavy box on a light one hold independently of the mass ratio,
+  which plain Gauss-Seidel (convergence ~ 1 - m_light/m_heavy per iteration) cannot.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vrsim_cli.maths.impulse import inverse_mass_along, restitution_alpha
+from vrsim_cli.maths.rotation import cross
+
+MAX_ELASTIC_PASSES = 32  # impulses per contact at one impact before eps is set to 0
+APPROACH_EPS = 1e-12  # m/s: a relative normal velocity below -this is "approaching"
+
+
+@dataclass
+class Bodies:
+    """Working velocities of all bodies while impulses are applied (not a State).
+
+    inv_mass: (n,) 1/kg, 0 for static, kinematic and waiting bodies
+    inv_inertia: (n, 3, 3) world frame 1/(kg m^2), 0 for bodies that do not turn freely
+    vel: (n, 3) m/s; angvel: (n, 3) rad/s world (angular momentum follows as I(t) omega)
+    pos: (n, 3) m centres of mass (fixed while velocities are solved)
+    """
+
+    inv_mass: np.ndarray
+    inv_inertia: np.ndarray
+    vel: np.ndarray
+    angvel: np.ndarray
+    pos: np.ndarray
+
+    @property
+    def movable(self) -> np.ndarray:
+        return (self.inv_mass > 0.0) | (np.abs(self.inv_inertia).max(axis=(1, 2)) > 0.0)
+
+
+@dataclass(frozen=True)
+class ContactSet:
+    """Contacts prepared for the solvers (k rows), with everything an impulse needs
+    precomputed along the three directions d_j = (n, t1, t2):
+
+    a, b: (k,) body indices; normal: (k, 3); depth: (k,) m; arm_a, arm_b: (k, 3) m
+    restitution, friction: (k,) combined material values
+    dirs: (k, 3, 3) rows n, t1, t2 (an orthonormal basis)
+    jac_a, jac_b: (k, 3, 3) p x d_j: the normal velocity is d.(v_B - v_A) + (p_B x d).w_B
+        - (p_A x d).w_A
+    lin_a, lin_b: (k, 3, 3) d_j / m; rot_a, rot_b: (k, 3, 3) I^-1 (p x d_j): the velocity
+        changes per unit impulse along d_j
+    inv_k: (k, 3) 1/K along each d_j (the slide's denominator; 0 where K = 0)
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    normal: np.ndarray
+    depth: np.ndarray
+    arm_a: np.ndarray
+    arm_b: np.ndarray
+    restitution: np.ndarray
+    friction: np.ndarray
+    dirs: np.ndarray
+    jac_a: np.ndarray
+    jac_b: np.ndarray
+    lin_a: np.ndarray
+    lin_b: np.ndarray
+    rot_a: np.ndarray
+    rot_b: np.ndarray
+    inv_k: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.a)
+
+    def take(self, idx) -> "ContactSet":
+        return ContactSet(*(getattr(self, f)[idx] for f in self.__dataclass_fields__))
+
+
+def tangents(normal: np.ndarray):
+    """Two unit tangents (k, 3) completing each normal to a right-handed basis. A normal
+    in the xy plane (all of 2D) gets t1 in the plane and t2 = +-z."""
+    if len(normal) and not normal[:, 2].any():
+        t1 = np.stack([-normal[:, 1], normal[:, 0], np.zeros(len(normal))], axis=1)
+        return t1, cross(normal, t1)
+    helper = np.where((np.abs(normal[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    t1 = cross(normal, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return t1, cross(normal, t1)
+
+
+def prepare(bodies: Bodies, a, b, point, normal, depth, restitution, friction,
+            inv_mass_a=None, inv_mass_b=None, inv_inertia_a=None, inv_inertia_b=None) \
+        -> ContactSet:
+    """Contacts with their lever arms and effective masses. The arm of each body ends at
+    its own witness point (P^K -+ depth/2 n, the point of its surface detection found), not
+    at the midpoint P^K: the two coincide at an impact (depth 0), and in a resting
+    contact the arm of a sphere is then exactly its radius, so rolling is v = omega r.
+    The inverse masses and inertias default to the bodies' (shock propagation passes
+    zeros for the frozen lower body)."""
+    half = 0.5 * depth[:, None] * normal
+    arm_a, arm_b = point + half - bodies.pos[a], point - half - bodies.pos[b]
+    t1, t2 = tangents(normal)
+    im_a = bodies.inv_mass[a] if inv_mass_a is None else inv_mass_a
+    im_b = bodies.inv_mass[b] if inv_mass_b is None else inv_mass_b
+    ii_a = bodies.inv_inertia[a] if inv_inertia_a is None else inv_inertia_a
+    ii_b = bodies.inv_inertia[b] if inv_inertia_b is None else inv_inertia_b
+    dirs = np.stack([normal, t1, t2], axis=1)
+    k = len(a)
+    arm3_a, arm3_b = np.repeat(arm_a, 3, axis=0), np.repeat(arm_b, 3, axis=0)
+    flat = dirs.reshape(-1, 3)
+    jac_a = cross(arm3_a, flat).reshape(k, 3, 3)
+    jac_b = cross(arm3_b, flat).reshape(k, 3, 3)
+    rot_a = np.einsum("kij,kdj->kdi", ii_a, jac_a)
+    rot_b = np.einsum("kij,kdj->kdi", ii_b, jac_b)
+    kk = np.stack([inverse_mass_along(im_a, im_b, ii_a, ii_b, arm_a, arm_b, dirs[:, j])
+                   for j in range(3)], axis=1)
+    inv_k = np.where(kk > 0, 1.0 / np.where(kk > 0, kk, 1.0), 0.0)
+    return ContactSet(a, b, normal, depth, arm_a, arm_b, restitution, friction, dirs, jac_a,
+                      jac_b, im_a[:, None, None] * dirs, im_b[:, None, None] * dirs, rot_a,
+                      rot_b, inv_k)
+
+
+def velocity_along(bodies: Bodies, c: ContactSet, j=slice(None)):
+    """Relative velocity v_rel = v_B - v_A at the contact points (slide 5.4.2) along the
+    directions j: (k, 3) for all three, (k,) for one."""
+    dv = bodies.vel[c.b] - bodies.vel[c.a]
+    if isinstance(j, int):
+        return (c.dirs[:, j] * dv).sum(1) + (c.jac_b[:, j] * bodies.angvel[c.b]).sum(1) - \
+            (c.jac_a[:, j] * bodies.angvel[c.a]).sum(1)
+    return np.einsum("kjd,kd->kj", c.dirs[:, j], dv) + \
+        np.einsum("kjd,kd->kj", c.jac_b[:, j], bodies.angvel[c.b]) - \
+        np.einsum("kjd,kd->kj", c.jac_a[:, j], bodies.angvel[c.a])
+
+
+def apply_along(bodies: Bodies, c: ContactSet, lam, j=slice(None)) -> None:
+    """Impulses sum_j lam_j d_j (lam: (k, len(j)) N s) on B and minus on A. Rows must not
+    share a movable body (a colour, or k = 1); fixed bodies may repeat (their rows of
+    lin and rot are 0, so they receive nothing)."""
+    bodies.vel[c.b] += np.einsum("kj,kjd->kd", lam, c.lin_b[:, j])
+    bodies.angvel[c.b] += np.einsum("kj,kjd->kd", lam, c.rot_b[:, j])
+    bodies.vel[c.a] -= np.einsum("kj,kjd->kd", lam, c.lin_a[:, j])
+    bodies.angvel[c.a] -= np.einsum("kj,kjd->kd", lam, c.rot_a[:, j])
+
+
+def apply_vector(bodies: Bodies, c: ContactSet, impulse) -> None:
+    """Impulse vectors (k, 3) N s, world, on B (minus on A)."""
+    apply_along(bodies, c, np.einsum("kjd,kd->kj", c.dirs, impulse))
+
+
+def _friction(bodies: Bodies, c: ContactSet, lam_t, limit):
+    """Coulomb friction: the tangential impulse that stops the sliding at the contact,
+    added to the accumulated lam_t (k, 2) and clamped to the cone |lam_t| <= limit (k,).
+    Returns the new lam_t; the change is applied."""
+    vt = velocity_along(bodies, c, slice(1, 3))
+    new = lam_t - vt * c.inv_k[:, 1:]
+    norm = np.linalg.norm(new, axis=1)
+    new = new * np.where(norm > limit, limit / np.where(norm > 0, norm, 1.0), 1.0)[:, None]
+    apply_along(bodies, c, new - lam_t, slice(1, 3))
+    return new
+
+
+def resolve_impacts(bodies: Bodies, c: ContactSet, rest_speed: float) -> np.ndarray:
+    """Apply the impulses of one instant of impact; returns the total impulse on B per
+    contact (k, 3) N s. A contact approaching slower than rest_speed gets eps = 0."""
+    k = len(c)
+    lam = np.zeros((k, 3))
+    count = np.zeros(k, np.int64)
+    for _ in range(MAX_ELASTIC_PASSES * k + 4 * k + 16 if k else 0):
+        vn = np.where(c.inv_k[:, 0] > 0, velocity_along(bodies, c, 0), 0.0)
+        i = int(np.argmin(vn))
+        if vn[i] >= -APPROACH_EPS:
+            break
+        one = c.take(slice(i, i + 1))
+        eps = 0.0 if (-vn[i] < rest_speed or count[i] >= MAX_ELASTIC_PASSES) else \
+            float(c.restitution[i])
+        alpha = restitution_alpha(vn[i:i + 1], eps, 1.0 / one.inv_k[:, 0])
+        apply_along(bodies, one, alpha[:, None], slice(0, 1))
+        lam[i, 0] += alpha[0]
+        if one.friction[0] > 0.0:
+            lam[i, 1:] = _friction(bodies, one, lam[i:i + 1, 1:], one.friction * alpha)[0]
+        count[i] += 1
+    return np.einsum("kj,kjd->kd", lam, c.dirs)
+
+
+def colours(a, b, movable) -> list[np.ndarray]:
+    """Split contacts into groups in which no movable body appears twice (greedy, in
+    contact order, so bodies listed bottom-up are solved bottom-up)."""
+    groups: list[list[int]] = []
+    used: list[set] = []
+    for k, (i, j) in enumerate(zip(a.tolist(), b.tolist())):
+        mine = {x for x in (i, j) if movable[x]}
+        for g, u in enumerate(used):
+            if not (mine & u):
+                groups[g].append(k)
+                u |= mine
+                break
+        else:
+            groups.append([k])
+            used.append(set(mine))
+    return [np.array(g, np.int64) for g in groups]
+
+
+def levels(n_body: int, a, b, movable) -> np.ndarray:
+    """(n,) contact distance of each body from a fixed (static or kinematic) body; movable
+    bodies touching nothing fixed get a large level (they are all solved together)."""
+    big = n_body + 1
+    level = np.where(movable, big, 0)
+    for _ in range(n_body + 1):
+        old = level.copy()
+        np.minimum.at(level, b, level[a] + 1)
+        np.minimum.at(level, a, level[b] + 1)
+        level = np.where(movable, level, 0)
+        if np.array_equal(level, old):
+            break
+    return level
+
+
+def solve_resting(bodies: Bodies, c: ContactSet, dt: float, iterations: int, warm=None):
+    """Sequential impulses on the contacts c (restitution 0), then a shock-propagation pass
+    on the normal velocities. `warm`: (k, 3) impulses (N s, world) to start from. Returns
+    the accumulated impulse (k, 3) N s, world, on B of each contact.
+
+    Per contact the accumulated normal impulse lam_n stays >= 0 and the friction impulse
+    in the Coulomb cone |lam_t| <= mu lam_n (clamping the accumulated, not the
+    incremental, impulse is what lets warm starting work; Catto 2006). A contact with a
+    gap (depth < 0) may still close at speed -depth/dt (a speculative contact)."""
+    k = len(c)
+    if not k:
+        return np.zeros((0, 3))
+    lam = np.zeros((k, 3)) if warm is None else np.einsum("kjd,kd->kj", c.dirs, warm)
+    lam[:, 0] = np.maximum(lam[:, 0], 0.0)
+    over = np.linalg.norm(lam[:, 1:], axis=1) > c.friction * lam[:, 0]
+    lam[over, 1:] = 0.0
+    movable = bodies.movable
+    groups = colours(c.a, c.b, movable)
+    subs = [c.take(g) for g in groups]
+    target = np.maximum(-c.depth, 0.0) / dt  # m/s allowed approach of a gap
+    if warm is not None:
+        for g, sub in zip(groups, subs):
+            apply_along(bodies, sub, lam[g])
+    rubs = [bool((sub.friction > 0).any()) for sub in subs]
+    for _ in range(iterations):
+        for g, sub, rub in zip(groups, subs, rubs):
+            if rub:  # friction first, as Box2D: the normal constraint has the last word
+                lam[g, 1:] = _friction(bodies, sub, lam[g, 1:], sub.friction * lam[g, 0])
+            vn = velocity_along(bodies, sub, 0)
+            new = np.maximum(lam[g, 0] - (vn + target[g]) * sub.inv_k[:, 0], 0.0)
+            apply_along(bodies, sub, (new - lam[g, 0])[:, None], slice(0, 1))
+            lam[g, 0] = new
+    loaded = lam[:, 0] > 0.0
+    # Sticking: the friction impulse that would stop the sliding now fits in the cone of
+    # the final normal impulse (the last clamp used an earlier, smaller lam_n).
+    needed = lam[:, 1:] - velocity_along(bodies, c, slice(1, 3)) * c.inv_k[:, 1:]
+    stick = loaded & (np.linalg.norm(needed, axis=1) <= c.friction * lam[:, 0])
+    _shock_velocities(bodies, _shock_plan(bodies, c, movable), target, loaded, stick)
+    return np.einsum("kj,kjd->kd", lam, c.dirs)
+
+
+def _shock_plan(bodies: Bodies, c: ContactSet, movable):
+    """Shock propagation order: contacts grouped by the lower level of their two bodies,
+    ground up. In each level the contacts whose other body is lower (frozen) are solved
+    as one block per upper body (`_block`); contacts between bodies of equal level (a
+    cluster touching nothing fixed) are coloured and solved one colour at a time."""
+    level = levels(len(movable), c.a, c.b, movable)
+    la, lb = level[c.a], level[c.b]
+    low = np.minimum(la, lb)
+    plan = []
+    for lv in np.unique(low):
+        idx = np.flatnonzero(low == lv)
+        block = la[idx] != lb[idx]
+        if block.any():
+            rows = idx[block]
+            plan.append(("block", _block(bodies, c, rows, lb[rows] > la[rows])))
+        for g in colours(c.a[idx[~block]], c.b[idx[~block]], movable):
+            rows = idx[~block][g]
+            plan.append(("pairs", (rows, c.take(rows))))
+    return plan
+
+
+def _block(bodies: Bodies, c: ContactSet, rows, upper_is_b):
+    """The contacts `rows` of one level, each with one frozen (lower) body, as one small
+    least-norm problem per upper body u: find the velocity change (dv, dw) of u, the least
+    in u's kinetic-energy metric W = diag(1/m, I^-1), that changes each contact's
+    velocity along d_j (n, t1, t2) by b: J W J^T lam = b, (dv, dw) = W J^T lam with the
+    row J = s (d_j, p x d_j) (s = +1 when u is B). Three rows per contact, padded to the
+    largest count per body; the pseudo-inverse handles coplanar manifolds (4 corners on
+    a face: rank 3 along n)."""
+    upper = np.where(upper_is_b, c.b[rows], c.a[rows])
+    sign = np.where(upper_is_b, 1.0, -1.0)[:, None, None]
+    jac = np.where(upper_is_b[:, None, None], c.jac_b[rows], c.jac_a[rows])
+    bodies_u, slot_body = np.unique(upper, return_inverse=True)
+    count = np.bincount(slot_body)
+    order = np.argsort(slot_body, kind="stable")
+    slot = np.empty(len(rows), np.int64)
+    slot[order] = np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count)
+    nb, kmax = len(bodies_u), int(count.max())
+    J = np.zeros((nb, kmax, 3, 6))
+    J[slot_body, slot, :, :3] = sign * c.dirs[rows]
+    J[slot_body, slot, :, 3:] = sign * jac
+    J = J.reshape(nb, 3 * kmax, 6)
+    W = np.zeros((nb, 6, 6))
+    W[:, :3, :3] = bodies.inv_mass[bodies_u, None, None] * np.eye(3)
+    W[:, 3:, 3:] = bodies.inv_inertia[bodies_u]
+    WJt = W @ np.swapaxes(J, 1, 2)
+    return rows, c.take(rows), bodies_u, slot_body, slot, WJt, J @ WJt, (nb, kmax)
+
+
+def _block_solve(blk, b_rows, loaded=None, stick=None):
+    """Changes (dv, dw) (nb, 3) of the upper bodies for the wanted velocity (or position)
+    changes b_rows (k, 3) along n, t1, t2. The normal row of a contact takes part when
+    b > 0 or the contact is `loaded`; its tangent rows when it `stick`s. A normal row
+    that is not loaded and would have to pull (lam < 0) is dropped and the rest solved
+    again (one active-set round)."""
+    _, _, bodies_u, slot_body, slot, WJt, A, (nb, kmax) = blk
+    b = np.zeros((nb, kmax, 3))
+    b[slot_body, slot] = b_rows
+    active = np.zeros((nb, kmax, 3), bool)
+    active[slot_body, slot, 0] = b_rows[:, 0] > 0.0
+    may_pull = np.zeros((nb, kmax, 3), bool)
+    if loaded is not None:
+        active[slot_body, slot, 0] |= loaded
+        may_pull[slot_body, slot, 0] = loaded
+    if stick is not None:
+        active[slot_body, slot, 1:] = stick[:, None]
+        may_pull[slot_body, slot, 1:] = True
+    b, active, may_pull = (x.reshape(nb, 3 * kmax) for x in (b, active, may_pull))
+    for _ in range(2):
+        mask = active[:, :, None] & active[:, None, :]
+        lam = (np.linalg.pinv(np.where(mask, A, 0.0), rcond=1e-10) @
+               np.where(active, b, 0.0)[..., None])[..., 0]
+        pulls = active & (lam < 0.0) & ~may_pull
+        if not pulls.any():
+            break
+        active &= ~pulls
+    delta = (WJt @ np.where(active, lam, 0.0)[..., None])[..., 0]
+    return bodies_u, delta[:, :3], delta[:, 3:]
+
+
+def _shock_velocities(bodies: Bodies, plan, target, loaded, stick) -> None:
+    """One pass from the ground up: afterwards no contact approaches (beyond its
+    speculative allowance), whatever the mass ratios, and a contact that carries load
+    (lam_n > 0 after the iterations) neither approaches nor separates, nor slides if
+    friction held it (|lam_t| < mu lam_n): the iterations' leftover error cannot make a
+    resting stack rock, hop or creep."""
+    for kind, data in plan:
+        rows, sub = data[0], data[1]
+        want = -velocity_along(bodies, sub)
+        want[:, 0] -= target[rows]
+        want[:, 0] = np.where(loaded[rows], want[:, 0], np.maximum(want[:, 0], 0.0))
+        if kind == "block":
+            u, dv, dw = _block_solve(data, want, loaded[rows], stick[rows])
+            bodies.vel[u] += dv
+            bodies.angvel[u] += dw
+        else:
+            apply_along(bodies, sub, (want[:, 0] * sub.inv_k[:, 0])[:, None], slice(0, 1))
+
+
+def correct_positions(bodies: Bodies, c: ContactSet, slop: float, iterations: int):
+    """Penetration removal (linearised non-linear Gauss-Seidel with shock propagation):
+    returns (dpos (n, 3) m, dtheta (n, 3) rad world rotation vectors) that bring every
+    contact's depth down to `slop`. The depth of a contact after corrections so far is
+    depth - n . (dp_B + dtheta_B x p_B - dp_A - dtheta_A x p_A); the same block and
+    pairwise solves as for velocities, with displacements in place of velocities."""
+    n = len(bodies.inv_mass)
+    dpos, dtheta = np.zeros((n, 3)), np.zeros((n, 3))
+    if not len(c) or not iterations:
+        return dpos, dtheta
+    plan = _shock_plan(bodies, c, bodies.movable)
+    for _ in range(iterations):
+        for kind, data in plan:
+            sub = data[1]
+            moved = (sub.normal * (dpos[sub.b] - dpos[sub.a])).sum(1) + \
+                (sub.jac_b[:, 0] * dtheta[sub.b]).sum(1) - (sub.jac_a[:, 0] * dtheta[sub.a]).sum(1)
+            excess = np.maximum(sub.depth - moved - slop, 0.0)
+            if kind == "block":
+                u, dv, dw = _block_solve(data, np.stack([excess, 0 * excess, 0 * excess], 1))
+                dpos[u] += dv
+                dtheta[u] += dw
+            else:
+                d = (excess * sub.inv_k[:, 0])[:, None]
+                dpos[sub.b] += d * sub.lin_b[:, 0]
+                dtheta[sub.b] += d * sub.rot_b[:, 0]
+                dpos[sub.a] -= d * sub.lin_a[:, 0]
+                dtheta[sub.a] -= d * sub.rot_a[:, 0]
+    return dpos, dtheta
