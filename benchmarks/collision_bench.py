@@ -23,9 +23,10 @@ import time
 
 import numpy as np
 
-from vrsim_cli.model.collision import aabbs, analytic_geom, place, table
+from vrsim_cli.model.collision import analytic_geom, table
 from vrsim_cli.stages.collision.broadphase import candidate_pairs
 from vrsim_cli.stages.collision.detect import narrow_phase
+from vrsim_cli.stages.collision.shapes import aabbs, place
 
 DENSITY = 8.0  # spheres per m^3
 

@@ -11,8 +11,11 @@ import numpy as np
 import pytest
 
 from vrsim_cli.tools.bench import problems as bench
-from vrsim_cli.tools.bench.problems import (BOUNCE, DZHANIBEKOV, Point, Results, Row, bounce_errors,
-                             bounce_truth, cached_reference, flight_apexes, run_bench, summary)
+from vrsim_cli.tools.bench import report
+from vrsim_cli.tools.bench.problems import (BOUNCE, DZHANIBEKOV, Point, Results, Row,
+                                            bounce_errors, bounce_truth, cached_reference,
+                                            flight_apexes)
+from vrsim_cli.tools.bench.report import run_bench, summary
 
 
 @pytest.fixture(autouse=True)
@@ -181,7 +184,7 @@ def test_throughput_rows_and_their_report():
     assert row.ms_per_step == pytest.approx(5.0)  # 0.5 s over 100 steps
     assert row.body_steps_per_s == pytest.approx(2000.0)  # 10 bodies x 100 steps / 0.5 s
     results = Results([Point("projectile", "vrsim", "rk4", 0.01, 2e-3, 1e-14, 100)], [row])
-    text = bench.markdown(results, "note")
+    text = report.markdown(results, "note")
     assert ("| engine | setting | bodies | steps | wall/step (ms) | body-steps/s | drift_m "
             "| escaped |") in text
     assert "| demo | dt = 1/60 s | 10 | 100 | 5.000 | 2000 | 0.002 | 3 |" in text
@@ -191,15 +194,15 @@ def test_throughput_rows_and_their_report():
                    "bodies": 10, "steps": 100, "wall_s": 0.5, "ms_per_step": 99.0,
                    "sanity": {"drift_m": 2e-3, "escaped": 3}}) == row
     faster = Row("stack", "vrsim", "x", 10, 100, 0.25, {})
-    (mine, theirs) = bench.throughput_summary([faster, row])
+    (mine, theirs) = report.throughput_summary([faster, row])
     assert mine["engine"] == "vrsim" and theirs["vrsim_over_peer"] == pytest.approx(2.0)
-    data = json.loads(bench.to_json(results))
+    data = json.loads(report.to_json(results))
     assert data["throughput"][0]["body_steps_per_s"] == pytest.approx(2000.0)
     assert data["throughput"][0]["sanity"] == {"drift_m": 2e-3, "escaped": 3}
 
 
 def test_registered_problems_have_a_runner_per_engine_and_a_known_kind():
-    for problem in bench.problems().values():
+    for problem in report.problems().values():
         assert problem.kind in ("work-precision", "throughput")
         assert "vrsim" in problem.runners
         assert (problem.target_error is None) == (problem.kind == "throughput")

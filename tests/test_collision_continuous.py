@@ -12,10 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vrsim_cli.maths.spatial import quat_from_axis_angle, quat_normalize
-from vrsim_cli.model.collision import analytic_geom, place, subset, table
+from vrsim_cli.model.collision import analytic_geom, table
 from vrsim_cli.model.state import State
 from vrsim_cli.stages.collision import fcl_adapter, time_of_impact
 from vrsim_cli.stages.collision.continuous import advance, motion
+from vrsim_cli.stages.collision.shapes import place, subset
 
 EPS = 1e-3  # m, the tolerance used throughout
 

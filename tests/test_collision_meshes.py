@@ -12,10 +12,12 @@ import trimesh
 
 from vrsim_cli.maths import geometry
 from vrsim_cli.maths import queries
-from vrsim_cli.maths.meshes import load_mesh, mesh_geom, proxy_errors
+from vrsim_cli.maths.meshes import load_mesh, proxy_errors
 from vrsim_cli.maths.spatial import quat_from_axis_angle, quat_normalize
-from vrsim_cli.model.collision import analytic_geom, place, table
+from vrsim_cli.model.collision import analytic_geom, table
+from vrsim_cli.model.collision import mesh_geom
 from vrsim_cli.stages.collision.detect import narrow_phase
+from vrsim_cli.stages.collision.shapes import place
 
 I = np.array([1.0, 0.0, 0.0, 0.0])
 

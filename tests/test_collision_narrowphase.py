@@ -11,10 +11,11 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from vrsim_cli.maths.spatial import quat_from_axis_angle, quat_from_euler_deg, quat_normalize
-from vrsim_cli.model.collision import analytic_geom, place, table
+from vrsim_cli.model.collision import analytic_geom, table
 from vrsim_cli.stages.collision import fcl_adapter
 from vrsim_cli.stages.collision.detect import narrow_phase
 from vrsim_cli.stages.collision.narrowphase import box_box_distance
+from vrsim_cli.stages.collision.shapes import place
 
 I = [1.0, 0.0, 0.0, 0.0]
 R2 = math.sqrt(2.0)

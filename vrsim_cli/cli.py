@@ -418,7 +418,7 @@ def collision_proxies(scene_file, samples, as_json):
     Per mesh body and proxy (sphere, aabb, obb, hull, mesh): the Hausdorff distance
     between the proxy's and the mesh's surfaces (sampled, a lower bound; both one-sided
     distances too) and the proxy's volume over the mesh's."""
-    from vrsim_cli.maths.meshes import scene_proxy_report
+    from vrsim_cli.model.collision import scene_proxy_report
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.scene.spec import load_scene
 
@@ -515,7 +515,7 @@ def walk_table_command(scene_file, fmt, exact, v_max, gamma_max, dt, position, d
 @_reports_errors
 def bench(quick, peers, names, repeats, folder):
     """Work-precision benchmark: wall time together with error, against MuJoCo/PyBullet."""
-    from vrsim_cli.tools.bench import problems as bench_module
+    from vrsim_cli.tools.bench import report as bench_module
     from vrsim_cli.writers.atomic import AtomicFile
 
     known = bench_module.problems()

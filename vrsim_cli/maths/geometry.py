@@ -1,8 +1,8 @@
 """Exact geometric queries against analytic shapes: signed distance, ray casts, and the
 closest approach of a capsule (the observer's body) to a shape.
 
-Layer 0/4 helper used by observer navigation (terrain height under the observer, walls).
-Shapes are the model's normalised shape dicts (see `model._shape`): sphere, box (full edge
+Layer 0, used by observer navigation (terrain height under the observer, walls).
+Shapes are the model's normalised shape dicts (see `model.model._shape`): sphere, box (full edge
 lengths), plane (world-frame half-space `n.p <= offset`), capsule and cylinder (along the
 body's local y). Poses: position (3,) m and unit quaternion [w, x, y, z].
 Meshes are not handled here (they join with the collision-detection issue).

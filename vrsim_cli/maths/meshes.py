@@ -60,32 +60,6 @@ def proxies(mesh) -> dict:
     }
 
 
-def mesh_geom(body: int, shape: dict, geometry: str) -> dict:
-    """The geom row (see shapes.CollisionModel) of a mesh body for `geometry`."""
-    from vrsim_cli.model.collision import BOX, CONVEX, MESH, SPHERE, _row
-
-    mesh = load_mesh(shape["path"], float(shape.get("scale", 1.0)))
-    geometry = "mesh" if geometry == "exact" else geometry
-    p = proxies(mesh)[geometry]
-    if geometry == "sphere":
-        row = _row(body, SPHERE, geometry)
-        row["local_pos"], row["radius"] = p["centre"], p["radius"]
-        row["half"] = np.full(3, p["radius"])
-        row["rbound"] = float(np.linalg.norm(p["centre"])) + p["radius"]
-        return row
-    if geometry == "obb":
-        row = _row(body, BOX, geometry)
-        row["local_pos"], row["local_quat"], row["half"] = p["centre"], p["quat"], p["half"]
-        row["rbound"] = float(np.linalg.norm(p["centre"]) + np.linalg.norm(p["half"]))
-        return row
-    row = _row(body, {"aabb": BOX, "hull": CONVEX, "mesh": MESH}[geometry], geometry)
-    row["vertices"] = p["vertices"]
-    row["faces"] = p.get("faces")
-    row["world_aabb"] = geometry == "aabb"
-    row["rbound"] = float(np.linalg.norm(p["vertices"], axis=1).max())
-    return row
-
-
 def proxy_surface(mesh, name: str, p: dict):
     """A trimesh of the proxy's surface, in the mesh frame (aabb: at identity orientation)."""
     trimesh = _trimesh()
@@ -150,24 +124,6 @@ def proxy_errors(mesh, samples: int = PROXY_SAMPLES) -> list[dict]:
     out.append({"proxy": "mesh", "hausdorff_m": 0.0, "proxy_to_mesh_m": 0.0,
                 "mesh_to_proxy_m": 0.0, "volume_ratio": 1.0})
     return out
-
-
-def scene_proxy_report(model, samples: int = PROXY_SAMPLES) -> list[dict]:
-    """`proxy_errors` for every mesh body of a compiled model, with the geometry the body
-    collides with (its collision.geometry, or 'none' without a collision block)."""
-    report = []
-    for i, shape in enumerate(model.body_shape):
-        if shape is None or shape["type"] != "mesh" or shape.get("path") is None:
-            continue
-        mesh = load_mesh(shape["path"], float(shape.get("scale", 1.0)))
-        geometry = "none"
-        cm = model.collision
-        if cm is not None and i in cm.geom_body.tolist():
-            geometry = cm.geom_geometry[cm.geom_body.tolist().index(i)]
-        report.append({"body": model.body_name[i], "file": shape["path"],
-                       "triangles": int(len(mesh.faces)), "geometry": geometry,
-                       "proxies": proxy_errors(mesh, samples)})
-    return report
 
 
 def _dot(u, v):

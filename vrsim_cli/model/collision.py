@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vrsim_cli.maths.spatial import quat_multiply, quat_to_matrix
+from vrsim_cli.maths.meshes import PROXY_SAMPLES, load_mesh, proxies, proxy_errors
 
 SPHERE, PLANE, BOX, CAPSULE, CYLINDER, CONVEX, MESH = range(7)
 TYPE_NAMES = ("sphere", "plane", "box", "capsule", "cylinder", "convex", "mesh")
@@ -75,76 +75,6 @@ class CollisionModel:
         return len(self.geom_body)
 
 
-@dataclass(frozen=True)
-class WorldGeoms:
-    """Geoms placed in the world at one instant.
-
-    pos: (n_geom, 3) m; rot: (n_geom, 3, 3) local -> world; half: (n_geom, 3) m
-    (as geom_half, but aabb proxies get their current world extents)."""
-
-    pos: np.ndarray
-    rot: np.ndarray
-    half: np.ndarray
-
-
-def place(cm: CollisionModel, body_pos, body_quat) -> WorldGeoms:
-    """World poses of all geoms from body poses (n_body, 3), (n_body, 4)."""
-    bq = np.asarray(body_quat, dtype=float)[cm.geom_body]
-    brot = quat_to_matrix(bq)
-    pos = np.asarray(body_pos, dtype=float)[cm.geom_body] + \
-        np.einsum("gij,gj->gi", brot, cm.geom_local_pos)
-    # Most geoms sit unturned in their body: then the body's rotation is theirs.
-    turned = np.any(cm.geom_local_quat[:, 1:] != 0.0, axis=1)
-    rot = brot.copy()
-    if turned.any():
-        rot[turned] = quat_to_matrix(quat_multiply(bq[turned], cm.geom_local_quat[turned]))
-    half = cm.geom_half
-    if cm.geom_world_aabb.any():
-        half = half.copy()
-        for g in np.flatnonzero(cm.geom_world_aabb):
-            world = cm.geom_vertices[g] @ brot[g].T
-            lo, hi = world.min(axis=0), world.max(axis=0)
-            half[g] = 0.5 * (hi - lo)
-            pos[g] = pos[g] - brot[g] @ cm.geom_local_pos[g] + 0.5 * (hi + lo)
-            rot[g] = np.eye(3)
-    planes = cm.geom_type == PLANE
-    if planes.any():  # half-spaces are given in the world frame
-        pos[planes] = cm.geom_plane_normal[planes] * cm.geom_plane_offset[planes, None]
-        rot[planes] = np.eye(3)
-    return WorldGeoms(pos, rot, half)
-
-
-def aabbs(cm: CollisionModel, world: WorldGeoms) -> tuple[np.ndarray, np.ndarray]:
-    """World axis-aligned bounding boxes (lo, hi), each (n_geom, 3) m; planes are infinite."""
-    extent = np.einsum("gij,gj->gi", np.abs(world.rot), world.half)
-    kind = cm.geom_type
-    caps = kind == CAPSULE
-    extent[caps] += cm.geom_radius[caps, None]
-    lo, hi = world.pos - extent, world.pos + extent
-    for g in np.flatnonzero((kind == CONVEX) | (kind == MESH)):
-        v = cm.geom_vertices[g] @ world.rot[g].T
-        lo[g], hi[g] = world.pos[g] + v.min(axis=0), world.pos[g] + v.max(axis=0)
-    planes = kind == PLANE
-    lo[planes], hi[planes] = -np.inf, np.inf
-    return lo, hi
-
-
-def subset(cm: CollisionModel, idx) -> CollisionModel:
-    """The geoms `idx` (m,) as a model of their own, each its own body (geom_body =
-    0..m-1), sharing the parent's fcl cache."""
-    idx = np.asarray(idx, dtype=np.int64)
-    return CollisionModel(
-        tolerance=cm.tolerance, broad_phase=cm.broad_phase, continuous=cm.continuous,
-        geom_body=np.arange(len(idx)), geom_type=cm.geom_type[idx],
-        geom_geometry=tuple(cm.geom_geometry[i] for i in idx),
-        geom_world_aabb=cm.geom_world_aabb[idx], geom_local_pos=cm.geom_local_pos[idx],
-        geom_local_quat=cm.geom_local_quat[idx], geom_radius=cm.geom_radius[idx],
-        geom_half=cm.geom_half[idx], geom_plane_normal=cm.geom_plane_normal[idx],
-        geom_plane_offset=cm.geom_plane_offset[idx], geom_rbound=cm.geom_rbound[idx],
-        geom_vertices=tuple(cm.geom_vertices[i] for i in idx),
-        geom_faces=tuple(cm.geom_faces[i] for i in idx), cache=cm.cache)
-
-
 def compile_collision(scene, shapes: list, dim: int, problems: list):
     """The CollisionModel of a scene with a top-level `collision` block, or None when it is
     disabled. Bad mesh files become located problems."""
@@ -162,7 +92,6 @@ def compile_collision(scene, shapes: list, dim: int, problems: list):
             if shape.get("path") is None:
                 continue  # the missing file is already a problem
             try:
-                from vrsim_cli.maths.meshes import mesh_geom
                 rows.append(mesh_geom(i, shape, geometry))
             except ValueError as exc:
                 problems.append(scene.problem(("bodies", i, "shape", "file"), str(exc),
@@ -247,3 +176,45 @@ def table(rows: list[dict], tolerance: float = DEFAULT_TOLERANCE, broad_phase: s
     """A CollisionModel from geom rows (tests and benchmarks build scenes this way)."""
     return _table(rows, {"tolerance": tolerance, "broad_phase": broad_phase,
                          "continuous": continuous})
+
+
+def mesh_geom(body: int, shape: dict, geometry: str) -> dict:
+    """The geom row (see CollisionModel) of a mesh body for `geometry`."""
+    mesh = load_mesh(shape["path"], float(shape.get("scale", 1.0)))
+    geometry = "mesh" if geometry == "exact" else geometry
+    p = proxies(mesh)[geometry]
+    if geometry == "sphere":
+        row = _row(body, SPHERE, geometry)
+        row["local_pos"], row["radius"] = p["centre"], p["radius"]
+        row["half"] = np.full(3, p["radius"])
+        row["rbound"] = float(np.linalg.norm(p["centre"])) + p["radius"]
+        return row
+    if geometry == "obb":
+        row = _row(body, BOX, geometry)
+        row["local_pos"], row["local_quat"], row["half"] = p["centre"], p["quat"], p["half"]
+        row["rbound"] = float(np.linalg.norm(p["centre"]) + np.linalg.norm(p["half"]))
+        return row
+    row = _row(body, {"aabb": BOX, "hull": CONVEX, "mesh": MESH}[geometry], geometry)
+    row["vertices"] = p["vertices"]
+    row["faces"] = p.get("faces")
+    row["world_aabb"] = geometry == "aabb"
+    row["rbound"] = float(np.linalg.norm(p["vertices"], axis=1).max())
+    return row
+
+
+def scene_proxy_report(model, samples: int = PROXY_SAMPLES) -> list[dict]:
+    """`proxy_errors` for every mesh body of a compiled model, with the geometry the body
+    collides with (its collision.geometry, or 'none' without a collision block)."""
+    report = []
+    for i, shape in enumerate(model.body_shape):
+        if shape is None or shape["type"] != "mesh" or shape.get("path") is None:
+            continue
+        mesh = load_mesh(shape["path"], float(shape.get("scale", 1.0)))
+        geometry = "none"
+        cm = model.collision
+        if cm is not None and i in cm.geom_body.tolist():
+            geometry = cm.geom_geometry[cm.geom_body.tolist().index(i)]
+        report.append({"body": model.body_name[i], "file": shape["path"],
+                       "triangles": int(len(mesh.faces)), "geometry": geometry,
+                       "proxies": proxy_errors(mesh, samples)})
+    return report

@@ -1,8 +1,8 @@
 """Keyframe tracks (slide 5.2): key times t_i and key values P_i -> a curve C(t) with
 C(t_i) = P_i, and its derivative.
 
-Layer 0: pure, vectorised curve maths over plain track specs; no bodies, no model. Used
-by the scene graph stage and by anyone who needs a keyframed path (the observer).
+Layer 2 (it compiles the scene's track specs, checked by `scene.animation`, into curves):
+pure, vectorised curve maths; no bodies, no model. Used by the scene graph stage and by anyone who needs a keyframed path (the observer).
 
     track = compile_track({"times": [0, 1, 3], "values": [[0, 0, 0], [1, 0, 0], [1, 2, 0]],
                            "interpolation": "catmull-rom", "extrapolation": "loop"})

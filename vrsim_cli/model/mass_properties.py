@@ -1,6 +1,6 @@
 """Mass, centre of mass and inertia tensor of a body (slide 5.3).
 
-Layer 1 helper (numbers only; it never imports the scene module, trimesh only when a mesh
+Layer 2 helper of `model.rigid` (numbers only; it never imports the scene module, trimesh only when a mesh
 body needs it). A body's mass properties come from, in this order:
 
 1. `particles`: point masses `m^i` at `p^i` (a list, or the generator

@@ -101,11 +101,11 @@ class Model:
     # Keyframes, drives and the scene graph (animation.Animation); None: nothing animated.
     # The pos0/quat0 of a body with a parent are local (relative to the parent's frame).
     animation: Animation | None = None
-    rigid: RigidModel | None = None  # rotation, springs, torques (rigid_model.py); None: point masses only
-    # collision.shapes.CollisionModel when the scene has a `collision` block, else None
+    rigid: RigidModel | None = None  # rotation, springs, torques (model/rigid.py); None: point masses only
+    # model.collision.CollisionModel when the scene has a `collision` block, else None
     # (then stage 2.3 costs nothing).
     collision: object | None = None
-    # collision.response_model.ResponseModel: how contacts change the motion (slide
+    # model.response.ResponseModel: how contacts change the motion (slide
     # 5.4.2); None without a collision block or with `collision.response: none` for all.
     response: object | None = None
 

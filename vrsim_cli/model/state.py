@@ -1,6 +1,6 @@
 """The mutable part of a run: positions, velocities, orientations at one instant.
 
-Layer 3. Structure-of-arrays numpy over bodies, named `body_<property>` with shape and
+Layer 2, beside the model (MuJoCo's mjData beside mjModel). Structure-of-arrays numpy over bodies, named `body_<property>` with shape and
 unit. Step functions take a State and return a new one (`replace`), so a stage can never
 half-update the state another stage reads.
 """

@@ -1,6 +1,6 @@
 """Checks of keyframe tracks, drives and parents that a JSON Schema cannot express.
 
-Layer 0: plain Python over plain dicts (no numpy, so `vrsim --help` stays light). Each
+Layer 1: plain Python over plain dicts (no numpy, so `vrsim --help` stays light). Each
 check yields `(key path, message, hint)`; `scene` turns them into located problems and
 `keyframes.compile_track` raises them as `TrackError` for callers that build tracks in code.
 """

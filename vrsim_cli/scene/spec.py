@@ -561,7 +561,7 @@ def _semantic_problems(scene: Scene) -> Iterator[Problem]:
             yield from vector(at + (key,))
         yield from nonzero(at + ("direction",), "an emitter's direction")
     yield from _observer_problems(scene, dim, names)
-    # Keyframes, drives and parents (the scene graph): checks in animation_spec.
+    # Keyframes, drives and parents (the scene graph): checks in scene/animation.py.
     for path, message, hint in body_issues(data.get("bodies") or [], dim):
         yield scene.problem(path, message, hint)
     # Emitted particles are named NAME.0000 ...: they must not collide with body names.

@@ -1,7 +1,7 @@
 """Loop stage 1, read sensors: the mouse (desktop VR) or the head tracker (CAVE).
 
 Slide 5.0: one loop iteration starts by reading the sensors. The sensor files were read
-when the model was compiled (`model_observer.compile_input`); this stage evaluates their
+when the model was compiled (`model.observer.compile_input`); this stage evaluates their
 samples at the frame's start time, at one fixed point of the frame, so replaying a
 recorded run gives the same values.
 """

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from vrsim_cli.errors import InputError, Problem
-from vrsim_cli.writers import CSV_COLUMNS
+from vrsim_cli.writers.entities import CSV_COLUMNS
 from vrsim_cli.writers.foxglove_schemas import STATE_COLUMNS
 
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 from vrsim_cli.model.model import Model
 from vrsim_cli.model.state import State
-from vrsim_cli.writers import CSV_COLUMNS, entity_arrays, entity_names
 from vrsim_cli.writers.atomic import AtomicFile
+from vrsim_cli.writers.entities import CSV_COLUMNS, entity_arrays, entity_names
 
 
 class CsvWriter:

@@ -24,8 +24,8 @@ from vrsim_cli.errors import OutputError
 from vrsim_cli.maths.spatial import quat_rotating
 from vrsim_cli.model.model import Model
 from vrsim_cli.model.state import State
-from vrsim_cli.writers import entity_arrays, entity_names
 from vrsim_cli.writers.atomic import AtomicFile
+from vrsim_cli.writers.entities import entity_arrays, entity_names
 from vrsim_cli.writers.foxglove_schemas import (FRAME_TRANSFORMS, SCENE_UPDATE, STATE_COLUMNS,
                                                 VRSIM_INPUT, VRSIM_STATE, schema_bytes)
 

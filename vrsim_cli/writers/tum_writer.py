@@ -18,7 +18,7 @@ from pathlib import Path
 from vrsim_cli.errors import OutputError
 from vrsim_cli.model.model import Model
 from vrsim_cli.model.state import State
-from vrsim_cli.writers import entity_arrays, entity_names
+from vrsim_cli.writers.entities import entity_arrays, entity_names
 
 # Columns of entity_arrays: px py pz qw qx qy qz ...; TUM wants tx ty tz qx qy qz qw.
 TUM_ORDER = [0, 1, 2, 4, 5, 6, 3]

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.model.model import BODY_STATIC
+
 LARGE_FACTOR = 8.0  # boxes larger than this many median sizes are tested against all
 
 
@@ -137,3 +139,17 @@ def candidate_pairs(lo, hi, method: str = "grid"):
     i, j = np.concatenate(parts_i).astype(np.int64), np.concatenate(parts_j).astype(np.int64)
     order = np.argsort(i * n + j, kind="stable")  # by (i, j): one key sorts faster
     return i[order], j[order]
+
+
+def broad_phase(model, lo, hi, step: int):
+    """Candidate geom pairs (ia, ib) among the world AABBs lo, hi (n_geom, 3): only geoms
+    whose body is in the scene at `step` (particles waiting at a nozzle all sit at one
+    point and would pair with each other), no pairs of one body or of two static bodies."""
+    cm = model.collision
+    idx = np.flatnonzero(model.body_emit_step[cm.geom_body] <= step)
+    ia, ib = candidate_pairs(lo[idx], hi[idx], cm.broad_phase)
+    ia, ib = idx[ia], idx[ib]
+    ba, bb = cm.geom_body[ia], cm.geom_body[ib]
+    moves = np.asarray(model.body_type) != BODY_STATIC
+    keep = (ba != bb) & (moves[ba] | moves[bb])
+    return ia[keep], ib[keep]

@@ -59,3 +59,31 @@ class Contacts:
 def no_pair_contacts():
     """The empty result of a pair function: (pair, point, normal, depth) with k = 0."""
     return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+
+
+def to_contacts(cm, ia, ib, pair, point, normal, depth, toi=None) -> Contacts:
+    """Geom-pair results -> Contacts over bodies with body_a < body_b, sorted."""
+    ba, bb = cm.geom_body[ia[pair]], cm.geom_body[ib[pair]]
+    flip = ba > bb
+    normal = np.where(flip[:, None], -normal, normal)
+    a, b = np.minimum(ba, bb), np.maximum(ba, bb)
+    toi = np.full(len(pair), np.nan) if toi is None else toi
+    order = np.lexsort((b, a))
+    return Contacts(a[order], b[order], point[order], normal[order], depth[order], toi[order])
+
+
+def planar(contacts: Contacts) -> Contacts:
+    """2D scenes: contacts in the z = 0 plane. Boxes are given a z depth for the 3D tests,
+    so a corner touches at z = +-depth: drop z, then the duplicates this makes."""
+    if not len(contacts):
+        return contacts
+    point = contacts.point * [1.0, 1.0, 0.0]
+    normal = contacts.normal * [1.0, 1.0, 0.0]
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.where(length > 0.0, normal / np.where(length > 0.0, length, 1.0),
+                      contacts.normal)
+    key = np.column_stack([contacts.body_a, contacts.body_b, np.round(point[:, :2] * 1e9)])
+    _, first = np.unique(key, axis=0, return_index=True)
+    keep = np.sort(first)
+    return Contacts(contacts.body_a[keep], contacts.body_b[keep], point[keep], normal[keep],
+                    contacts.depth[keep], contacts.toi[keep])

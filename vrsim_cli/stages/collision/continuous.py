@@ -19,9 +19,11 @@ from __future__ import annotations
 import numpy as np
 
 from vrsim_cli.maths.spatial import quat_conjugate, quat_multiply
-from vrsim_cli.model.collision import BOX, PLANE, SPHERE, aabbs, place, subset
-from vrsim_cli.stages.collision.contacts import Contacts
-from vrsim_cli.stages.collision.narrowphase import box_box_distance
+from vrsim_cli.model.collision import BOX, PLANE, SPHERE
+from vrsim_cli.stages.collision.broadphase import broad_phase
+from vrsim_cli.stages.collision.contacts import Contacts, to_contacts
+from vrsim_cli.stages.collision.narrowphase import box_box_distance, narrow_phase
+from vrsim_cli.stages.collision.shapes import aabbs, place, subset
 
 MAX_ITERATIONS = 200  # conservative advancement steps per pair before giving up (no TOI)
 
@@ -85,8 +87,6 @@ def pair_distance(cm, world, ia, ib):
     """Distance (P,) of geom pairs (<= 0 when they touch): closed forms; for box pairs the
     exact corner/edge distance (the separating-axis gap is only a lower bound); fcl's
     GJK for pairs without a closed form."""
-    from vrsim_cli.stages.collision.detect import narrow_phase
-
     d = np.full(len(ia), np.inf)
     boxes = (cm.geom_type[ia] == BOX) & (cm.geom_type[ib] == BOX)
     rest = np.flatnonzero(~boxes)
@@ -150,8 +150,6 @@ def swept_contacts(model, before, after, exclude=frozenset(), world_after=None) 
     """Contacts at the time of impact of pairs that touch during the step from `before` to
     `after` but not at its end (pairs of bodies in `exclude` are skipped). `world_after`:
     the geoms already placed at `after`, if the caller has them."""
-    from vrsim_cli.stages.collision.detect import broad_phase, narrow_phase, to_contacts
-
     cm = model.collision
     dt = after.t - before.t
     if cm is None or cm.n_geom == 0 or dt <= 0.0:

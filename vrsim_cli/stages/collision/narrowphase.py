@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
+from vrsim_cli.stages.collision import fcl_adapter
 from vrsim_cli.stages.collision.contacts import no_pair_contacts
 
 _EPS = 1e-12
@@ -538,3 +539,30 @@ DISPATCH = {
     (PLANE, CONVEX): plane_vertices,
     (PLANE, MESH): plane_vertices,
 }
+
+
+def narrow_phase(cm, world, ia, ib, margin: float):
+    """Contacts of candidate geom pairs (ia, ib): dispatch by type pair, swap when the
+    table has (B, A), fcl when there is no closed form. Returns (pair, point, normal,
+    depth) with `pair` indexing the candidates and normals from ia to ib."""
+    ta, tb = cm.geom_type[ia], cm.geom_type[ib]
+    parts = []
+    codes = ta * 16 + tb
+    for code in np.unique(codes):
+        sel = np.flatnonzero(codes == code)
+        key = (int(code) // 16, int(code) % 16)
+        if key in DISPATCH:
+            pair, point, normal, depth = DISPATCH[key](cm, world, ia[sel], ib[sel], margin)
+        elif key[::-1] in DISPATCH:
+            pair, point, normal, depth = DISPATCH[key[::-1]](cm, world, ib[sel], ia[sel],
+                                                            margin)
+            normal = -normal
+        else:
+            pair, point, normal, depth = fcl_adapter.pair_contacts(cm, world, ia[sel],
+                                                                   ib[sel], margin)
+        parts.append((sel[pair], point, normal, depth))
+    if not parts:
+        return no_pair_contacts()
+    pair, point, normal, depth = (np.concatenate(x) for x in zip(*parts))
+    order = np.argsort(pair, kind="stable")
+    return pair[order], point[order], normal[order], depth[order]

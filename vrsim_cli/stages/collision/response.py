@@ -23,7 +23,7 @@
    starting, shock propagation and position correction (`solver.solve_resting`,
    `solver.correct_positions`).
 
-Responses per pair (`response_model`): `impulse` (above), `slide` (the slide's
+Responses per pair (`model.response`): `impulse` (above), `slide` (the slide's
 v <- v - (v.n) n for each body moving into the other, then pushed out of penetration),
 `stop` (a body keeps its last non-colliding pose, at rest: at an impact it stops at the
 time of impact; in a resting contact it goes back to its pose after the step's last
@@ -39,13 +39,15 @@ from __future__ import annotations
 import numpy as np
 
 from vrsim_cli.maths.rotation import cross, exp_so3, quat_from_matrix
-from vrsim_cli.model.collision import BOX, aabbs, place
+from vrsim_cli.model.collision import BOX
 from vrsim_cli.model.model import BODY_DYNAMIC
 from vrsim_cli.model.response import IMPULSE, NONE, SLIDE, STOP
 from vrsim_cli.stages.collision import jacobi, solver
-from vrsim_cli.stages.collision.contacts import Contacts
+from vrsim_cli.stages.collision.broadphase import broad_phase
+from vrsim_cli.stages.collision.contacts import Contacts, planar, to_contacts
 from vrsim_cli.stages.collision.continuous import pair_distance, swept_contacts
-from vrsim_cli.stages.collision.detect import broad_phase, narrow_phase, planar, to_contacts
+from vrsim_cli.stages.collision.narrowphase import narrow_phase
+from vrsim_cli.stages.collision.shapes import aabbs, place
 
 MAX_EVENTS = 64  # impacts located per step; later ones in the step go to the resting solver
 ROOT_ITERATIONS = 200

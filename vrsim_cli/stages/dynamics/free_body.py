@@ -1,6 +1,6 @@
 """The exact flow of the torque-free rigid body (Euler-Poinsot motion), vectorised.
 
-Layer 0, beside `rotation`. `exact_free_rotation(moments, Rp, L, h)` returns the
+Part of loop stage 2.1 (dynamics), pure maths beside `maths.rotation`. `exact_free_rotation(moments, Rp, L, h)` returns the
 principal-frame orientations after time h of torque-free motion under a constant world
 angular momentum L, to round-off for any h (Jacobi 1849; Celledoni, Fasso, Safstrom &
 Zanna, SIAM J. Sci. Comput. 30(4), 2008; van Zon & Schofield, J. Comput. Phys. 225,

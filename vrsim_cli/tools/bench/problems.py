@@ -7,11 +7,11 @@ Layer 7. Two kinds of problem:
   method runs at a sweep of step sizes (or tolerances); each run gives a `Point` (wall
   time, error). The report states the least wall time each engine needs to reach the
   problem's target error, the ratio vrsim / peer, and the least error each engine reached.
-- throughput (stack here; spheres from `bench_spheres.py`): one run per engine and
+- throughput (stack here; spheres from `spheres.py`): one run per engine and
   setting; each gives a `Row` (bodies, steps, wall time per step, body-steps/s) with named
   sanity figures (drift, tilt, energy ratio, escaped bodies) instead of an error.
 
-Every problem is one entry of `problems()` with a runner per engine,
+Every problem is one entry of `report.problems()` with a runner per engine,
 `runner(quick: bool, repeats: int) -> list[Point]` (work precision) or `-> list[Row]`
 (throughput). Timing covers only the stepping: the model is built first, one warm-up run
 is made, and the best of `repeats` timed runs is kept (machines here are noisy; the
@@ -19,7 +19,7 @@ minimum is the least disturbed measurement); runs longer than `REPEAT_BUDGET_S` 
 repeating once that much time has been spent timing them (at least one timed run).
 
 Peers (MuJoCo, PyBullet) run the same problems in the same process when they are
-installed (`pip install 'vrsim-cli[bench]'`); see `bench_peers.py` for their settings.
+installed (`pip install 'vrsim-cli[bench]'`); see `peers.py` for their settings.
 """
 
 from __future__ import annotations
@@ -28,9 +28,8 @@ import hashlib
 import json
 import math
 import os
-import platform
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -467,263 +466,3 @@ bodies:
                         stack_sanity(model.body_pos0[top], result.state.body_pos[top],
                                      quat_to_matrix(result.state.body_quat[top]))))
     return rows
-
-
-# ----------------------------------------------------------------------------- registry
-
-
-def problems() -> dict[str, Problem]:
-    from vrsim_cli.tools.bench import peers as bench_peers
-    from vrsim_cli.tools.bench import spheres as bench_spheres
-
-    listed = [
-        Problem(
-            name="projectile",
-            description="a 0.2 kg point mass thrown at (3, 7, -1.5) m/s under gravity for 1 s",
-            truth="closed form x0 + v0 t + g t^2 / 2",
-            error_unit="m (position error at t = 1 s)",
-            target_error=1e-6,
-            runners={"vrsim": _vrsim_projectile,
-                     "mujoco": bench_peers.mujoco_projectile,
-                     "pybullet": bench_peers.pybullet_projectile}),
-        Problem(
-            name="bounce",
-            description="a 1 kg ball (r = 0.1 m) dropped with its bottom 1 m above a plane, "
-                        "restitution 0.8, g = 9.81, for 3 s (the drop and 5 bounces)",
-            truth="apex heights h_k = h0 eps^(2k), impact times t_1 = sqrt(2 h0/g), "
-                  "t_(k+1) = t_k + 2 eps^k sqrt(2 g h0)/g",
-            error_unit="m (largest apex error over flights 0-5; apex = bottom height + "
-                       "vy^2/(2g) at the flight's sample nearest its apex)",
-            target_error=1e-9,
-            runners={"vrsim": _vrsim_bounce, "mujoco": bench_peers.mujoco_bounce,
-                     "pybullet": bench_peers.pybullet_bounce}),
-        Problem(
-            name="dzhanibekov",
-            description="a torque-free 1 kg box 0.1 x 0.4 x 1.0 m spun at (0.01, 5, 0.01) "
-                        "rad/s about its intermediate axis, for 20 s (five flips, the "
-                        "first at 1.70 s)",
-            truth="Euler's equations by scipy DOP853 at rtol 1e-12 (cached)",
-            error_unit="rad (largest orientation error at t = 1, 2, ... 20 s)",
-            target_error=1e-6,
-            runners={"vrsim": _vrsim_dzhanibekov, "mujoco": bench_peers.mujoco_dzhanibekov,
-                     "pybullet": bench_peers.pybullet_dzhanibekov}),
-        Problem(
-            name="spheres",
-            description="N = 100 and 1000 spheres (r = 0.05 m, 0.1 kg, restitution 0.5, "
-                        "friction 0.5) with random velocities in a closed box, g = 9.81, "
-                        "dt = 0.01 s (bench_spheres.py)",
-            truth="energy at the end over the start (<= 1), spheres that left the box "
-                  "(0), deepest wall penetration in m",
-            kind="throughput",
-            runners={"vrsim": bench_spheres.vrsim_spheres,
-                     "mujoco": bench_spheres.mujoco_spheres,
-                     "pybullet": bench_spheres.pybullet_spheres}),
-        Problem(
-            name="stack",
-            description="ten 1 kg unit cubes stacked on a ground plane, friction 0.5, "
-                        "5 s (--quick: 0.5 s)",
-            truth="the top box's drift |p(T) - p(0)| in m and tilt in rad (both 0 for a "
-                  "stack at rest)",
-            kind="throughput",
-            runners={"vrsim": _vrsim_stack, "mujoco": bench_peers.mujoco_stack,
-                     "pybullet": bench_peers.pybullet_stack}),
-    ]
-    return {p.name: p for p in listed}
-
-
-# ----------------------------------------------------------------------------- running
-
-
-def run_bench(names=None, quick=False, peers=False, repeats=None) -> Results:
-    from vrsim_cli.tools.bench import peers as bench_peers
-
-    repeats = repeats or (2 if quick else 5)
-    chosen = problems()
-    results = Results()
-    for name in names or list(chosen):
-        problem = chosen[name]
-        for engine, runner in problem.runners.items():
-            if engine != "vrsim" and (not peers or not bench_peers.available(engine)):
-                continue
-            found = runner(quick, repeats)
-            if problem.kind == "throughput":
-                results.rows.extend(Row.of(item) for item in found)
-            else:
-                results.points.extend(found)
-    return results
-
-
-def summary(points: list[Point]) -> list[dict]:
-    """Per problem and engine: least wall time reaching the target error (ratio to vrsim's),
-    and the least error reached at all (with its setting and wall time)."""
-    rows = []
-    table = problems()
-    for name in dict.fromkeys(p.problem for p in points):
-        target = table[name].target_error
-        best, least = {}, {}
-        for p in points:
-            if p.problem != name:
-                continue
-            if p.error <= target and (p.engine not in best or p.wall_s < best[p.engine].wall_s):
-                best[p.engine] = p
-            if p.engine not in least or (p.error, p.wall_s) < (least[p.engine].error,
-                                                                least[p.engine].wall_s):
-                least[p.engine] = p
-        for engine in least:
-            b, low = best.get(engine), least[engine]
-            row = {"problem": name, "engine": engine, "target_error": target,
-                   "best_wall_s": b.wall_s if b else None,
-                   "method": f"{b.method}, dt = {b.dt:g} s" if b else "target not reached",
-                   "least_error": low.error, "least_error_wall_s": low.wall_s,
-                   "least_error_method": f"{low.method}, dt = {low.dt:g} s"}
-            if engine != "vrsim" and "vrsim" in best:
-                # a peer that misses the target is compared at its most accurate setting
-                row["vrsim_over_peer"] = best["vrsim"].wall_s / (b or low).wall_s
-            rows.append(row)
-    return rows
-
-
-def machine() -> dict:
-    return {"python": platform.python_version(), "machine": platform.machine(),
-            "processor": platform.processor() or "unknown", "cores": os.cpu_count(),
-            "system": f"{platform.system()} {platform.release()}",
-            "load_average": [round(x, 2) for x in os.getloadavg()]}
-
-
-def _format_extra(extra: dict) -> str:
-    return ", ".join(f"{key} {value:.3g}" for key, value in extra.items())
-
-
-def markdown(results: Results, repeats_note: str) -> str:
-    lines = ["# vrsim bench", "", f"Machine: {json.dumps(machine())}", "",
-             f"Timing: {repeats_note}", ""]
-    table = problems()
-    points = results.points
-    for name in dict.fromkeys(p.problem for p in points):
-        problem = table[name]
-        lines += [f"## {name}", "", f"{problem.description}. Truth: {problem.truth}. "
-                  f"Error: {problem.error_unit}.", "",
-                  "| engine | method | dt (s) | steps | wall (ms) | error | also |",
-                  "|---|---|---|---|---|---|---|"]
-        for p in points:
-            if p.problem == name:
-                lines.append(f"| {p.engine} | {p.method} | {p.dt:.6g} | {p.steps} | "
-                             f"{1e3 * p.wall_s:.3f} | {p.error:.3e} | {_format_extra(p.extra)} |")
-        lines += ["", f"Least wall time to reach error <= {problem.target_error:g}, and the "
-                  "least error reached:", "",
-                  "| engine | best setting | wall (ms) | vrsim / engine | least error | "
-                  "at (setting, wall ms) |", "|---|---|---|---|---|---|"]
-        for row in summary(points):
-            if row["problem"] == name:
-                wall = f"{1e3 * row['best_wall_s']:.3f}" if row["best_wall_s"] else "-"
-                ratio = f"{row['vrsim_over_peer']:.2f}" if "vrsim_over_peer" in row else "-"
-                if row["best_wall_s"] is None and "vrsim_over_peer" in row:
-                    ratio += " (at its least error)"
-                lines.append(f"| {row['engine']} | {row['method']} | {wall} | {ratio} | "
-                             f"{row['least_error']:.2e} | {row['least_error_method']}, "
-                             f"{1e3 * row['least_error_wall_s']:.3f} |")
-        lines.append("")
-    for name in dict.fromkeys(r.problem for r in results.rows):
-        lines += throughput_markdown(table[name], [r for r in results.rows if r.problem == name])
-    return "\n".join(lines)
-
-
-def throughput_summary(rows: list[Row]) -> list[dict]:
-    """Per problem, number of bodies and engine: the highest body-steps/s, and vrsim's
-    over it."""
-    best = {}
-    for r in rows:
-        key = (r.problem, r.bodies, r.engine)
-        if key not in best or r.body_steps_per_s > best[key].body_steps_per_s:
-            best[key] = r
-    out = []
-    for (problem, bodies, engine), r in best.items():
-        entry = {"problem": problem, "bodies": bodies, "engine": engine,
-                 "setting": r.setting, "body_steps_per_s": r.body_steps_per_s,
-                 "ms_per_step": r.ms_per_step}
-        mine = best.get((problem, bodies, "vrsim"))
-        if engine != "vrsim" and mine is not None:
-            entry["vrsim_over_peer"] = mine.body_steps_per_s / r.body_steps_per_s
-        out.append(entry)
-    return out
-
-
-def throughput_markdown(problem: Problem, rows: list[Row]) -> list[str]:
-    figures = list(dict.fromkeys(key for r in rows for key in r.sanity))
-    lines = [f"## {problem.name}", "", f"{problem.description}. Sanity: {problem.truth}.", "",
-             "| engine | setting | bodies | steps | wall/step (ms) | body-steps/s | "
-             + " | ".join(figures) + " |",
-             "|---|---|---|---|---|---|" + "---|" * len(figures)]
-    for r in rows:
-        values = " | ".join(_format_figure(r.sanity.get(key)) for key in figures)
-        lines.append(f"| {r.engine} | {r.setting} | {r.bodies} | {r.steps} | "
-                     f"{r.ms_per_step:.3f} | {r.body_steps_per_s:.4g} | {values} |")
-    lines += ["", "Highest throughput per engine (vrsim / engine > 1: vrsim is faster):", "",
-              "| bodies | engine | best setting | wall/step (ms) | body-steps/s | "
-              "vrsim / engine |", "|---|---|---|---|---|---|"]
-    for e in throughput_summary(rows):
-        ratio = f"{e['vrsim_over_peer']:.3g}" if "vrsim_over_peer" in e else "-"
-        lines.append(f"| {e['bodies']} | {e['engine']} | {e['setting']} | "
-                     f"{e['ms_per_step']:.3f} | {e['body_steps_per_s']:.4g} | {ratio} |")
-    return lines + [""]
-
-
-def _format_figure(value) -> str:
-    if value is None:
-        return "-"
-    return f"{value:d}" if isinstance(value, (int, np.integer)) else f"{value:.3g}"
-
-
-def plot(results: Results, folder: Path) -> list[Path]:
-    """Work-precision plots (log-log error vs wall time, one curve per engine and method)
-    and, per throughput problem, a bar chart of body-steps/s per engine and setting."""
-    try:
-        import matplotlib
-    except ImportError:
-        return []
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    written = []
-    points = results.points
-    for name in dict.fromkeys(p.problem for p in points):
-        fig, ax = plt.subplots(figsize=(6.4, 4.4))
-        curves = dict.fromkeys((p.engine, p.method) for p in points if p.problem == name)
-        for engine, method in curves:
-            pts = [p for p in points if (p.problem, p.engine, p.method) == (name, engine, method)]
-            # errors at round-off are plotted at 1e-17 so log axes keep them visible
-            ax.loglog([p.wall_s for p in pts], [max(p.error, 1e-17) for p in pts], "o-",
-                      label=f"{engine}: {method}")
-        ax.set_xlabel("wall time (s), best of repeats")
-        ax.set_ylabel("error")
-        ax.set_title(f"work-precision: {name}")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=6)
-        written.append(_save(fig, folder / f"{name}.png", plt))
-    for name in dict.fromkeys(r.problem for r in results.rows):
-        rows = [r for r in results.rows if r.problem == name]
-        fig, ax = plt.subplots(figsize=(6.4, 0.6 + 0.45 * len(rows)))
-        ax.barh([f"{r.engine}: {r.setting}"[:60] for r in rows],
-                [r.body_steps_per_s for r in rows])
-        ax.set_xscale("log")
-        ax.invert_yaxis()
-        ax.tick_params(axis="y", labelsize=6)
-        ax.set_xlabel("body-steps/s (best of repeats)")
-        ax.set_title(f"throughput: {name}")
-        written.append(_save(fig, folder / f"{name}.png", plt))
-    return written
-
-
-def _save(fig, path: Path, plt) -> Path:
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def to_json(results: Results) -> str:
-    rows = [dict(asdict(r), ms_per_step=r.ms_per_step, body_steps_per_s=r.body_steps_per_s)
-            for r in results.rows]
-    return json.dumps({"machine": machine(), "points": [asdict(p) for p in results.points],
-                       "summary": summary(results.points), "throughput": rows,
-                       "throughput_summary": throughput_summary(results.rows)}, indent=2)
