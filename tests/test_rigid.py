@@ -685,3 +685,30 @@ def test_the_slides_cube_keeps_its_body_axes_as_principal_axes():
     moments, axes = props.principal()
     assert moments == pytest.approx([0.8] * 3, rel=1e-12)
     assert np.array_equal(axes, np.eye(3))
+
+
+@pytest.mark.parametrize("other", ["", "  - {name: wall, type: static, position: [5, 0, 0]}\n",
+                                   "  - {name: cart, type: kinematic, velocity: [1, 0, 0]}\n"])
+def test_damping_of_a_body_does_not_reach_emitted_particles(other):
+    """The damping coefficients are one per scene body; emitted particles come after them.
+    With a static or kinematic body too this was a broadcast error; with one body alone its
+    coefficient was broadcast onto every particle (a silent wrong result). Truth: the
+    particle's free fall x0 + v0 t + g t^2 / 2 (RK4 is exact for it, to round-off), and
+    v0 e^-c t for the damped body in zero gravity along x (relative error (c dt)^4 / 120)."""
+    model, _, s1, _ = simulate(f"""
+vrsim: 1
+duration: 1
+frame_rate: 100
+dt: 0.001
+gravity: [0, -9.81, 0]
+integrator: rk4
+bodies:
+  - {{name: puck, mass: 3, shape: {{type: sphere, radius: 0.2}}, velocity: [2, 0, 0],
+     damping: {{linear: 0.5}}}}
+{other}emitters: [{{name: e, count: 1, rate: 1, speed: 3, mass: 0.1, direction: [1, 1, 0]}}]
+""")
+    particle = model.body_index["e.0000"]
+    v0 = 3 / math.sqrt(2)
+    assert s1.body_pos[particle] == pytest.approx([v0, v0 - 0.5 * 9.81, 0], abs=1e-12)
+    assert s1.body_vel[particle] == pytest.approx([v0, v0 - 9.81, 0], abs=1e-12)
+    assert s1.body_vel[0, 0] == pytest.approx(2 * math.exp(-0.5), rel=1e-9)

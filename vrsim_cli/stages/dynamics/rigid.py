@@ -101,7 +101,10 @@ def forces(model: Model, t: float, x, v, R, L, mask, w=None):
         _spring_forces(model, rigid, x, v, R, w, F, M)
     mass = model.body_mass
     if rigid.body_lin_damping.any():
-        F -= np.where(np.isfinite(mass), rigid.body_lin_damping * mass, 0.0)[:, None] * v
+        # One coefficient per scene body; emitted particles come after them, undamped.
+        k = len(rigid.body_lin_damping)
+        F[:k] -= np.where(np.isfinite(mass[:k]), rigid.body_lin_damping * mass[:k],
+                          0.0)[:, None] * v[:k]
     if r:
         M -= rigid.body_ang_damping[rigid.rot_index, None] * L
         M[rigid.rot_kinematic] = 0.0
