@@ -273,10 +273,17 @@ def test_progress_bar_on_a_terminal_for_long_runs(write_scene, monkeypatch):
     assert terminal.getvalue().count("%") == 1
 
 
-def test_tum_output_replaces_the_whole_folder(invoke, write_scene, tmp_path):
+def test_tum_output_refuses_to_mix_runs_and_removes_nothing(invoke, write_scene, tmp_path):
+    """A .tum file of an entity this run does not have is neither deleted nor left beside
+    the new files: the run is refused before it starts, and the folder stays as it was."""
     out = tmp_path / "tum"
     out.mkdir()
     (out / "stale.tum").write_text("0 0 0 0 0 0 0 1\n")
+    result = invoke("run", write_scene(BALL), "-o", out, "--format", "tum")
+    assert result.exit_code == 2
+    assert "holds 'stale.tum' of entities this run does not have" in result.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["stale.tum"]
+    (out / "stale.tum").unlink()
     assert invoke("run", write_scene(BALL), "-o", out, "--format", "tum").exit_code == 0
     assert sorted(p.name for p in out.iterdir()) == ["ball.tum"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml", "tum"]

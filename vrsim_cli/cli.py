@@ -11,15 +11,14 @@ import json
 import math
 import signal
 import sys
-import threading
 import time
 from functools import wraps
 from pathlib import Path
 
 import click
 
-from vrsim_cli import __version__
-from vrsim_cli.errors import EXIT_INPUT, InputError, SimulationError, VrsimError
+from vrsim_cli import __version__, interrupts
+from vrsim_cli.errors import EXIT_INPUT, InputError, SimulationError, VrsimError, printable
 from vrsim_cli.scene.spec import scene_schema
 
 # Choices come from the shipped schema (cheap to read), so `vrsim --help` need not import
@@ -90,25 +89,24 @@ def cli():
 
 
 class _Signals(contextlib.AbstractContextManager):
-    """Turn SIGINT/SIGTERM into a flag the loop polls once per frame, so the output is
-    finalised instead of cut off. Only the main thread can install handlers."""
-
-    def __init__(self):
-        self.received: int | None = None
-        self.previous: dict = {}
+    """SIGINT/SIGTERM become a flag the loop polls once per frame, so the output is
+    finalised instead of cut off; a second signal discards it (see `interrupts`). The
+    `vrsim` entry point has installed the handlers already; in-process callers (tests)
+    get them here, and their own back afterwards."""
 
     def __enter__(self):
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self.previous[sig] = signal.signal(sig, self._handle)
+        self.previous = interrupts.install()
+        self.block = interrupts.deferred()
+        self.block.__enter__()
         return self
 
-    def _handle(self, signum, _frame):
-        self.received = signum
+    @property
+    def received(self) -> int | None:
+        return interrupts.received
 
     def __exit__(self, *exc):
-        for sig, handler in self.previous.items():
-            signal.signal(sig, handler)
+        self.block.__exit__(*exc)
+        interrupts.restore(self.previous)
         return False
 
 
@@ -143,31 +141,42 @@ class _Progress:
 
 
 def _output_target(output: str | None, fmt: str | None):
-    """(path, format) from -o/--format, or None. Usage errors exit 2."""
+    """(path, format) from -o/--format, or None. Usage errors exit 2. `-o -` writes CSV
+    (or MCAP with --format mcap) to standard output."""
     from vrsim_cli.model.model import output_format_for
+    from vrsim_cli.scene.files import STDOUT, about, file_target_problem, tum_folder_problem
 
     if output is None:
         if fmt:
             raise click.UsageError("--format needs -o/--output")
         return None
+    if output == STDOUT:
+        if fmt == "tum":
+            raise click.UsageError("-o - writes csv or mcap to standard output; tum output "
+                                   "is a folder")
+        return Path(STDOUT), fmt or "csv"
     path = Path(output)
     fmt = output_format_for(path, fmt)
+    shown = printable(output)
     if fmt is None:
-        raise click.UsageError(f"cannot tell the format of '{output}': use a .mcap or .csv "
+        raise click.UsageError(f"cannot tell the format of '{shown}': use a .mcap or .csv "
                                f"suffix, or --format tum with a folder")
-    if not path.parent.is_dir():
-        raise click.UsageError(f"folder '{path.parent}' does not exist")
-    if fmt != "tum" and path.is_dir():
-        raise click.UsageError(f"'{output}' is a folder; give a file name")
-    if fmt == "tum" and path.exists() and not path.is_dir():
-        raise click.UsageError(f"'{output}' is a file; --format tum writes a folder")
+    try:
+        if fmt == "tum" and path.exists() and not path.is_dir() and not path.is_symlink():
+            raise click.UsageError(f"'{shown}' is a file; --format tum writes a folder")
+    except (OSError, ValueError):
+        pass  # a name too long or holding NUL: said below
+    problem = tum_folder_problem(path) if fmt == "tum" else file_target_problem(path)
+    if problem is not None:
+        raise click.UsageError(printable(about(output, problem)))
     return path, fmt
 
 
 @cli.command()
 @click.argument("scene_file", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(), help="Trajectory file: .mcap or .csv, or a "
-              "folder with --format tum. Overrides the scene's output.file.")
+@click.option("-o", "--output", type=click.Path(), help="Trajectory file: .mcap or .csv, a "
+              "folder with --format tum, or - for standard output. Overrides the scene's "
+              "output.file.")
 @click.option("--format", "fmt", type=click.Choice(OUTPUT_FORMATS), help="Output format "
               "(default: from the suffix).")
 @click.option("--duration", type=POSITIVE, help="Simulated time in s (overrides the scene).")
@@ -195,7 +204,8 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     from vrsim_cli.writers import open_writer
 
     target = _output_target(output, fmt)
-    if target is not None and target[0].resolve() == Path(scene_file).resolve():
+    if target is not None and str(target[0]) != "-" and \
+            target[0].resolve() == Path(scene_file).resolve():
         raise click.UsageError("the output would overwrite the scene file")
     scene = load_scene(scene_file).with_overrides({
         ("duration",): (duration, "--duration"), ("dt",): (dt, "--dt"),
@@ -203,45 +213,60 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         ("output", "frames", "dir"): (frames_dir, "--frames"),
         ("tolerance",): (tolerance, "--tolerance")})
     model = compile_model(scene, output_override=target)
-    frames = _open_frames(model, video)  # before simulating: a missing OSMesa fails at once
-    say = (lambda *a, **k: None) if quiet else click.echo
+    to_stdout = model.output.path is not None and str(model.output.path) == "-"
+    # With the trajectory on standard output, the summary goes to stderr.
+    say = (lambda *a, **k: None) if quiet else \
+        (lambda text, err=False: click.echo(text, err=err or to_stdout))
     for note in model.notes:
-        say(f"note: {note}", err=True)
+        say(f"note: {printable(note)}", err=True)
     if model.dt != model.dt_requested:
         say(f"note: dt = {model.dt_requested:g} s does not divide the frame interval "
             f"1/{model.frame_rate:g} s; using dt = {model.dt:.6g} s "
             f"({model.steps_per_frame} steps per frame)", err=True)
-    writer = open_writer(model, model.output.path, model.output.format) \
-        if model.output.path is not None else None
     progress = _Progress(model, enabled=not quiet)
     state = make_state(model)
     failure = None
-    with _Signals() as signals:
+    writer = frames = None
+    closed = []  # what was finalised already (and must not be aborted)
+
+    def abort() -> None:
+        progress.clear()
+        if writer is not None and writer not in closed:
+            writer.abort()
+        if frames is not None and frames not in closed:
+            frames.abort()
+
+    with _Signals() as signals:  # from before the first output file is opened
         try:
-            result = run_loop(model, state, writer, realtime=realtime,
-                              should_stop=lambda: signals.received is not None,
-                              on_frame=progress, render=frames)
-        except SimulationError as exc:
-            failure = exc  # finalise the output up to the last good state, then report
-        except BaseException:  # an output error, or a bug: keep any previous file
-            progress.clear()
-            if writer is not None:
-                writer.abort()
-            if frames is not None:
-                frames.abort()
-            raise
-        finally:
-            progress.clear()
-        if frames is not None:  # still under the handlers: a signal now cannot cut it off
-            frames.close()
-        if writer is not None:
             try:
+                # before simulating: a missing OSMesa fails at once
+                frames = _open_frames(model, video)
+                writer = open_writer(model, model.output.path, model.output.format) \
+                    if model.output.path is not None else None
+                result = run_loop(model, state, writer, realtime=realtime,
+                                  should_stop=lambda: signals.received is not None,
+                                  on_frame=progress, render=frames)
+            except SimulationError as exc:
+                failure = exc  # finalise the output up to the last good state, then report
+            finally:
+                progress.clear()
+            # still under the handlers: a signal now cannot cut the output off
+            if frames is not None:
+                frames.close()
+                closed.append(frames)
+            if writer is not None:
                 writer.close()
-            except VrsimError:
-                writer.abort()
-                raise
+                closed.append(writer)
+        except interrupts.Interrupted as exc:  # a second signal: discard, keep the previous
+            abort()
+            click.echo(f"interrupted twice by {interrupts.name(exc.signum)}: output "
+                       f"discarded, any previous output kept", err=True)
+            sys.exit(exc.exit_code)
+        except BaseException:  # an output error, or a bug: keep any previous file
+            abort()
+            raise
     if failure is not None:
-        kept = f"; output up to the last good state kept in {model.output.path}" \
+        kept = f"; output up to the last good state kept in {_shown_path(model)}" \
             if writer is not None else ""
         click.echo(f"error: {failure}{kept}", err=True)
         sys.exit(failure.exit_code)
@@ -254,6 +279,11 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         click.echo(f"interrupted by {name} at t = {result.state.t:.6g} s; output finalised",
                    err=True)
         sys.exit(128 + signals.received)
+
+
+def _shown_path(model) -> str:
+    path = str(model.output.path)
+    return "standard output" if path == "-" else printable(path)
 
 
 def _open_frames(model, video: str | None):
@@ -284,9 +314,9 @@ def _summary(model, result, say, profile: bool, realtime: bool) -> None:
 
     state = result.state
     factor = state.t / result.wall_s if result.wall_s > 0 else float("inf")
-    where = f" -> {model.output.path}" if model.output.path is not None else \
+    where = f" -> {_shown_path(model)}" if model.output.path is not None else \
         " (no output: use -o FILE)"
-    say(f"{model.name}: simulated {state.t:.6g} s in {state.step} steps of {model.dt:.6g} s, "
+    say(f"{printable(model.name)}: simulated {state.t:.6g} s in {state.step} steps of {model.dt:.6g} s, "
         f"wall {result.wall_s:.3f} s, {factor:.1f}x real time{where}")
     say(f"state sha256:{state_hash(state)}")
     if realtime:
@@ -612,7 +642,19 @@ def compare(a, b, atol, rtol, angle_tol, overrides, allow_missing_entities, show
 
 
 def main() -> None:
-    cli(prog_name="vrsim")
+    """The `vrsim` command (see `vrsim_cli.__main__.main`, which installs the signal
+    handlers before importing this module)."""
+    interrupts.install()
+    try:
+        cli(prog_name="vrsim")
+    except interrupts.Interrupted as exc:
+        interrupted(exc)
+
+
+def interrupted(exc: "interrupts.Interrupted") -> None:
+    """Report a signal that arrived while nothing was being written, and exit."""
+    sys.stderr.write(f"interrupted by {interrupts.name(exc.signum)}; nothing was written\n")
+    sys.exit(exc.exit_code)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,6 +28,7 @@ from vrsim_cli.model.animation import Animation, compile_animation
 from vrsim_cli.model.frames import FramesSpec, compile_frames
 from vrsim_cli.model.observer import InputModel, ObserverModel, compile_input, compile_observer
 from vrsim_cli.model.rigid import ADAPTIVE, RigidModel, compile_rigid, rigid_notes
+from vrsim_cli.scene.files import about, file_target_problem, tum_folder_problem
 from vrsim_cli.scene.spec import Scene
 
 BODY_DYNAMIC, BODY_KINEMATIC, BODY_STATIC = 0, 1, 2
@@ -39,6 +41,7 @@ DEFAULT_DT = 0.001  # s
 DEFAULT_GRAVITY = (0.0, -9.81, 0.0)  # m/s^2, y up as on the slides
 DEFAULT_PARTICLE_RADIUS = 0.02  # m, drawn size of an emitted particle
 MAX_STEPS = 2_000_000_000  # a run longer than this is a typo, not a plan
+MAX_TUM_ENTITIES = 256  # TUM writes one file per entity (writers/tum_writer.py)
 
 # Ten distinguishable colours for bodies without `color` (RGBA).
 PALETTE = np.array([
@@ -237,6 +240,12 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         shapes.extend([sphere] * count)
         emit.extend(particles["emit_step"])
 
+    if output.format == "tum" and output.path is not None:
+        entities = names + (["observer"] if observer is not None else [])
+        problems.extend(_tum_entity_problems(scene, output, output_override, entities))
+        if problems:
+            raise InputError(problems)
+
     collision = response = None
     if data.get("collision") is not None:
         from vrsim_cli.model.collision import compile_collision  # only scenes that collide
@@ -316,6 +325,13 @@ def _output_spec(scene: Scene, out: dict, override, every_steps: int,
     path = scene.resolve_path(("output", "file"), problems)
     if path is None:
         return OutputSpec(None, None, every_steps)
+    # resolve_path follows links; the name the scene gives must not be one itself (the
+    # output would replace the file it points to, or the link)
+    named = Path(os.path.normpath(scene.base_dir.resolve() / out["file"]))
+    if named.is_symlink():
+        problems.append(scene.problem(("output", "file"), f"'{out['file']}' is a symbolic "
+                                      f"link; give the file it points to"))
+        return OutputSpec(None, None, every_steps)
     fmt = output_format_for(path, out.get("format"))
     if fmt is None:
         problems.append(scene.problem(("output", "file"), f"cannot tell the format of "
@@ -326,8 +342,10 @@ def _output_spec(scene: Scene, out: dict, override, every_steps: int,
 
 
 def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[Problem]:
-    """What would fail only after the whole run, or destroy the input: a missing folder, a
-    file format aimed at a folder, a TUM folder aimed at a file, the scene file itself."""
+    """What would fail only after the whole run, or destroy the input or anything else: a
+    missing folder, a file format aimed at a folder, a TUM folder aimed at a file or at a
+    folder holding other files (the scene's own, say), the scene file itself, a device,
+    FIFO, socket or symbolic link (see scene.files)."""
     at = ("output", "file")
     if scene.file and path == Path(scene.file).resolve():
         return [scene.problem(at, "the output would overwrite the scene file itself")]
@@ -338,6 +356,26 @@ def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[P
         return [scene.problem(at, f"'{scene.get(at)}' is a folder; {fmt} output is a file")]
     if fmt == "tum" and path.exists() and not path.is_dir():
         return [scene.problem(at, f"'{scene.get(at)}' is a file; tum output is a folder")]
+    problem = tum_folder_problem(path, None, scene.file) if fmt == "tum" else \
+        file_target_problem(path) if fmt is not None else None
+    if problem is not None:
+        return [scene.problem(at, about(scene.get(at), problem))]
+    return []
+
+
+def _tum_entity_problems(scene: Scene, output: OutputSpec, override, entities) -> list:
+    """A TUM run writes one file per entity: at most MAX_TUM_ENTITIES, and no `.tum` files
+    of other entities may stay beside them (a mix of two runs)."""
+    where = (lambda message: Problem("command line (-o)", 0, 0, (), message)) \
+        if override is not None else (lambda message: scene.problem(("output", "file"),
+                                                                     message))
+    if len(entities) > MAX_TUM_ENTITIES:
+        return [where(f"tum output writes one file per entity, at most {MAX_TUM_ENTITIES}; "
+                      f"this scene has {len(entities)} entities (use csv or mcap)")]
+    problem = tum_folder_problem(output.path, set(entities), scene.file)
+    if problem is not None:
+        shown = str(output.path) if override is not None else scene.get(("output", "file"))
+        return [where(about(shown, problem))]
     return []
 
 
