@@ -38,14 +38,12 @@ def out_args(tmp_path, fmt: str):
 
 @pytest.mark.parametrize("fmt", ["csv", "mcap", "tum"])
 @pytest.mark.parametrize("body,message,last_good", [
-    # 1e300 N on 1e-10 kg: the velocity overflows to inf in the first step after 0.5 s
-    ("{name: rocket, mass: 1.0e-10, forces: [{force: [1.0e300, 0, 0], start: 0.5}]}",
-     "body 'rocket', t = 0.51 s: position or velocity is not finite (NaN or Inf)", 0.5),
+    # 1e15 N on 1e-9 kg (the largest force, smallest mass vrsim takes): 1e20 m in a step
+    ("{name: rocket, mass: 1.0e-9, forces: [{force: [1.0e15, 0, 0], start: 0.5}]}",
+     "body 'rocket', t = 0.51 s: moved more than 1e+12 m from the origin", 0.5),
     # 1e8 m/s from 1e12 - 5e5 m crosses 1e12 m after 0.005 s: in the first step of 0.01 s
     ("{name: probe, type: kinematic, position: [9.999995e11, 0, 0], velocity: [1.0e8, 0, 0]}",
      "body 'probe', t = 0.01 s: moved more than 1e+12 m from the origin", 0.0),
-    ("{name: photon, type: kinematic, velocity: [0, 3.0e8, 0]}",
-     "body 'photon', t = 0.01 s: moves faster than light (3e+08 m/s along an axis)", 0.0),
 ])
 def test_blow_up_exits_1_naming_body_and_time_and_keeps_the_output(
         invoke, write_scene, tmp_path, fmt, body, message, last_good):
