@@ -35,6 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.scene.files import MAX_MESH_BYTES
+
 SHAPES_WITH_MASS = ("sphere", "box", "capsule", "cylinder", "mesh")
 
 
@@ -312,7 +314,8 @@ def scene_report(scene) -> list[dict]:
             continue
         mesh = None
         if (body.get("shape") or {}).get("type") == "mesh":
-            resolved = scene.resolve_path(("bodies", i, "shape", "file"), problems)
+            resolved = scene.input_path(("bodies", i, "shape", "file"), problems,
+                                        MAX_MESH_BYTES)
             mesh = str(resolved) if resolved is not None else None
             if mesh is None:
                 continue

@@ -28,7 +28,8 @@ from vrsim_cli.model.animation import Animation, compile_animation
 from vrsim_cli.model.frames import FramesSpec, compile_frames
 from vrsim_cli.model.observer import InputModel, ObserverModel, compile_input, compile_observer
 from vrsim_cli.model.rigid import ADAPTIVE, RigidModel, compile_rigid, rigid_notes
-from vrsim_cli.scene.files import about, file_target_problem, tum_folder_problem
+from vrsim_cli.scene.files import (MAX_MESH_BYTES, about, file_target_problem,
+                                   tum_folder_problem)
 from vrsim_cli.scene.spec import Scene
 
 BODY_DYNAMIC, BODY_KINEMATIC, BODY_STATIC = 0, 1, 2
@@ -327,8 +328,8 @@ def _output_spec(scene: Scene, out: dict, override, every_steps: int,
         return OutputSpec(None, None, every_steps)
     # resolve_path follows links; the name the scene gives must not be one itself (the
     # output would replace the file it points to, or the link)
-    named = Path(os.path.normpath(scene.base_dir.resolve() / out["file"]))
-    if named.is_symlink():
+    named = os.path.normpath(scene.base_dir.resolve() / out["file"])
+    if os.path.islink(named):
         problems.append(scene.problem(("output", "file"), f"'{out['file']}' is a symbolic "
                                       f"link; give the file it points to"))
         return OutputSpec(None, None, every_steps)
@@ -349,6 +350,9 @@ def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[P
     at = ("output", "file")
     if scene.file and path == Path(scene.file).resolve():
         return [scene.problem(at, "the output would overwrite the scene file itself")]
+    name = file_target_problem(path) if fmt != "tum" else tum_folder_problem(path)
+    if name is not None and ("name is" in name or "too long" in name):
+        return [scene.problem(at, about(scene.get(at), name))]
     if not path.parent.is_dir():
         return [scene.problem(at, f"folder '{path.parent}' does not exist",
                               "paths are relative to the scene file's folder")]
@@ -380,11 +384,7 @@ def _tum_entity_problems(scene: Scene, output: OutputSpec, override, entities) -
 
 
 def _existing_file(scene: Scene, path: tuple, problems: list[Problem]) -> str | None:
-    resolved = scene.resolve_path(path, problems)
-    if resolved is not None and not resolved.is_file():
-        problems.append(scene.problem(path, f"file '{scene.get(path)}' not found",
-                                      f"paths are relative to {scene.base_dir}"))
-        return None
+    resolved = scene.input_path(path, problems, MAX_MESH_BYTES)
     return str(resolved) if resolved is not None else None
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from vrsim_cli.errors import InputError, Problem
 from vrsim_cli.maths.spatial import quat_normalize, quat_slerp, unit
+from vrsim_cli.scene.files import MAX_SENSOR_BYTES
 from vrsim_cli.scene.spec import Scene
 
 # X3D NavigationInfo defaults: avatarSize [0.25, 1.6, 0.75], speed 1 m/s.
@@ -135,7 +136,7 @@ def compile_input(scene: Scene, observer: ObserverModel | None,
         return InputModel("per_frame", np.zeros(0), values)
     for key in ("file", "tracker", "replay"):
         if key in spec:
-            path = scene.resolve_path(("input", key), problems)
+            path = scene.input_path(("input", key), problems, MAX_SENSOR_BYTES)
             if path is None:
                 return NO_INPUT
             if key == "file":
