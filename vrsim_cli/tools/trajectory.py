@@ -10,12 +10,14 @@ import csv
 import gzip
 import json
 import zlib
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from vrsim_cli.errors import InputError, Problem
+from vrsim_cli.scene.files import input_file_problem
 from vrsim_cli.writers.entities import CSV_COLUMNS
 from vrsim_cli.writers.foxglove_schemas import STATE_COLUMNS
 
@@ -32,10 +34,14 @@ class Track:
     angvel: np.ndarray
 
     @classmethod
-    def from_rows(cls, t: list, rows: list) -> "Track":
-        data = np.asarray(rows, dtype=float).reshape(len(rows), 13)
-        return cls(np.asarray(t, dtype=float), data[:, 0:3], data[:, 3:7], data[:, 7:10],
-                   data[:, 10:13])
+    def from_rows(cls, t, rows) -> "Track":
+        """t: n times; rows: n rows of 13 numbers, or a flat array('d') of 13 n."""
+        # an array('d') is wrapped, not copied
+        data = (np.frombuffer(rows, dtype=float) if isinstance(rows, array) else
+                np.asarray(rows, dtype=float)).reshape(len(t), 13)
+        times = np.frombuffer(t, dtype=float) if isinstance(t, array) else \
+            np.asarray(t, dtype=float)
+        return cls(times, data[:, 0:3], data[:, 3:7], data[:, 7:10], data[:, 10:13])
 
 
 @dataclass
@@ -53,12 +59,20 @@ class Trajectory:
         return np.unique(np.concatenate([tr.t for tr in self.tracks.values()]))
 
 
+# Reading is bounded: text (a gzip file may expand a thousandfold) and numbers, kept as
+# packed float64 (a short number such as "0," is 2 bytes of text but 8 in memory).
+MAX_TRAJECTORY_BYTES = 128 * 1024 * 1024
+MAX_TRAJECTORY_ROWS = 2_500_000  # entity samples: 14 float64 each, ~280 MB (compare reads 2)
+
+
 def read_trajectory(path: str | Path) -> Trajectory:
     path = Path(path)
     if path.is_dir():
         return _read_tum_folder(path)
-    if not path.exists():
-        raise InputError([Problem(str(path), 0, 0, (), "no such file")])
+    # a FIFO or device would block or never end; numbers are kept as packed float64
+    problem = input_file_problem(path, MAX_TRAJECTORY_BYTES)
+    if problem is not None:
+        raise InputError([Problem(str(path), 0, 0, (), problem)])
     suffix = path.suffix.lower()
     if "".join(path.suffixes[-2:]).lower() == ".csv.gz":
         return _read_csv(path, compressed=True)
@@ -82,12 +96,12 @@ def _fail(path: Path, line: int, message: str, hint: str | None = None) -> Input
 def _read_csv(path: Path, compressed: bool = False) -> Trajectory:
     """A vrsim CSV; `compressed`: gzip-compressed (.csv.gz, as the golden files are)."""
     traj = Trajectory(str(path), "csv.gz" if compressed else "csv")
-    times: dict[str, list] = {}
-    rows: dict[str, list] = {}
+    times: dict[str, array] = {}
+    rows: dict[str, array] = {}
     try:
         opener = gzip.open if compressed else open
         with opener(path, "rt", newline="", encoding="utf-8") as f:
-            reader = csv.reader(f)
+            reader = csv.reader(_limited(f, path))
             header = next(reader, None)
             if header is None or tuple(header) != CSV_COLUMNS:
                 raise _fail(path, 1, "not a vrsim trajectory CSV",
@@ -102,8 +116,12 @@ def _read_csv(path: Path, compressed: bool = False) -> Trajectory:
                 except ValueError:
                     raise _fail(path, line_no, "a number column holds something else") from None
                 name = row[1]
-                times.setdefault(name, []).append(t)
-                rows.setdefault(name, []).append(values)
+                if name not in times:
+                    times[name], rows[name] = array("d"), array("d")
+                if line_no > MAX_TRAJECTORY_ROWS + 1:
+                    raise _too_many(path)
+                times[name].append(t)
+                rows[name].extend(values)
     except UnicodeDecodeError:
         raise _fail(path, 0, "not UTF-8 text") from None
     except csv.Error as exc:  # e.g. a field longer than the csv module's limit
@@ -117,11 +135,31 @@ def _read_csv(path: Path, compressed: bool = False) -> Trajectory:
     return traj
 
 
+def _too_many(path: Path) -> InputError:
+    return _fail(path, 0, f"holds more than {MAX_TRAJECTORY_ROWS} entity samples; at most "
+                          f"that many are read")
+
+
+def _limited(lines, path: Path):
+    """The lines of a text file, refused beyond MAX_TRAJECTORY_BYTES characters (a gzip
+    file may expand a thousandfold)."""
+    total = 0
+    for line in lines:
+        total += len(line)
+        if total > MAX_TRAJECTORY_BYTES:
+            raise _fail(path, 0, f"holds more than {MAX_TRAJECTORY_BYTES} bytes of text; at "
+                                 f"most that much is read")
+        yield line
+
+
 def _read_tum_file(path: Path) -> Track:
-    t, rows = [], []
+    problem = input_file_problem(path, MAX_TRAJECTORY_BYTES)  # in a folder: any kind
+    if problem is not None:
+        raise _fail(path, 0, problem)
+    t, rows = array("d"), array("d")
     try:
         with open(path, encoding="utf-8") as f:
-            for line_no, line in enumerate(f, start=1):
+            for line_no, line in enumerate(_limited(f, path), start=1):
                 line = line.strip()
                 if not line or line.startswith("#"):
                     continue
@@ -134,7 +172,9 @@ def _read_tum_file(path: Path) -> Track:
                 except ValueError:
                     raise _fail(path, line_no, "not a number") from None
                 t.append(tt)
-                rows.append([tx, ty, tz, qw, qx, qy, qz] + [np.nan] * 6)
+                rows.extend([tx, ty, tz, qw, qx, qy, qz] + [np.nan] * 6)
+                if len(t) > MAX_TRAJECTORY_ROWS:
+                    raise _too_many(path)
     except UnicodeDecodeError:
         raise _fail(path, 0, "not UTF-8 text") from None
     except OSError as exc:
@@ -156,8 +196,9 @@ def _read_mcap(path: Path) -> Trajectory:
     from mcap.reader import make_reader
 
     traj = Trajectory(str(path), "mcap")
-    times: dict[str, list] = {}
-    rows: dict[str, list] = {}
+    times: dict[str, array] = {}
+    rows: dict[str, array] = {}
+    count = 0
     try:
         with open(path, "rb") as f:
             reader = make_reader(f)
@@ -176,8 +217,13 @@ def _read_mcap(path: Path) -> Trajectory:
                 sample = json.loads(message.data)
                 for entity in sample["entities"]:
                     name = entity["name"]
-                    times.setdefault(name, []).append(float(sample["t"]))
-                    rows.setdefault(name, []).append([entity[c] for c in STATE_COLUMNS])
+                    if name not in times:
+                        times[name], rows[name] = array("d"), array("d")
+                    times[name].append(float(sample["t"]))
+                    rows[name].extend([entity[c] for c in STATE_COLUMNS])
+                    count += 1
+                    if count > MAX_TRAJECTORY_ROWS:
+                        raise _too_many(path)
     except InputError:
         raise
     except OSError as exc:
