@@ -452,7 +452,10 @@ def collision_proxies(scene_file, samples, as_json):
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.scene.spec import load_scene
 
-    report = scene_proxy_report(compile_model(load_scene(scene_file)), samples)
+    try:
+        report = scene_proxy_report(compile_model(load_scene(scene_file)), samples)
+    except ValueError as exc:  # a flat mesh has no hull, so no proxies to compare
+        raise InputError(f"{scene_file}: {exc}") from None
     if as_json:
         click.echo(json.dumps(report, indent=2))
         return
