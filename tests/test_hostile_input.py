@@ -360,7 +360,7 @@ def test_emitters_may_not_add_up_to_unbounded_memory(tmp_path):
     result = CliRunner().invoke(cli, ["validate", str(scene)], catch_exceptions=False)
     assert time.perf_counter() - start < 10  # generous; the point is: refused, not built
     assert result.exit_code == 2
-    assert "emitters: the scene has 100000000 bodies and particles; at most 1000000" in \
+    assert "emitters: the scene has 100000000 bodies and particles; at most 400000" in \
         result.stderr
 
 

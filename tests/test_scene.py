@@ -180,7 +180,7 @@ def test_too_many_particles(write_scene):
           - {name: k, count: 100000, rate: 10, speed: 1, mass: 1}
         """)
     assert out == ["F:3:1: emitters: the scene has 1100000 bodies and particles; at most "
-                   "1000000 are allowed"]
+                   "400000 are allowed"]
 
 
 @pytest.mark.parametrize("vector", ["[1.0e-320, 0, 0, 0]", "[1.0e300, 1.0e300, 0, 0]"])

@@ -190,6 +190,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
 
     # --- bodies, then emitted particles
     names: list[str] = []
+    triangles: list[tuple] = []  # (body index, triangles) of mesh bodies
     kinds, masses, pos0, vel0, quat0, colors, shapes, emit = [], [], [], [], [], [], [], []
     force_body, force_vec, force_start, force_end = [], [], [], []
     for i, body in enumerate(data.get("bodies") or []):
@@ -205,7 +206,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         colors.append(_color(body.get("color"), len(colors)))
         shapes.append(_shape(body.get("shape"), dim, pos0[-1]))
         if shapes[-1] is not None and shapes[-1]["type"] == "mesh":
-            shapes[-1]["path"] = _existing_file(scene, at + ("shape", "file"), problems)
+            shapes[-1]["path"] = _mesh_file(scene, at + ("shape",), problems, triangles)
         emit.append(0)
         for force in body.get("forces") or []:
             force_body.append(len(names) - 1)
@@ -241,6 +242,10 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         shapes.extend([sphere] * count)
         emit.extend(particles["emit_step"])
 
+    problems.extend(_memory_problems(scene, len(names), output, frames, triangles,
+                                     _start_overlaps(scene, kinds, pos0, shapes, emit)))
+    if problems:
+        raise InputError(problems)
     if output.format == "tum" and output.path is not None:
         entities = names + (["observer"] if observer is not None else [])
         problems.extend(_tum_entity_problems(scene, output, output_override, entities))
@@ -383,9 +388,73 @@ def _tum_entity_problems(scene: Scene, output: OutputSpec, override, entities) -
     return []
 
 
-def _existing_file(scene: Scene, path: tuple, problems: list[Problem]) -> str | None:
-    resolved = scene.input_path(path, problems, MAX_MESH_BYTES)
-    return str(resolved) if resolved is not None else None
+def _start_overlaps(scene: Scene, kinds, pos0, shapes, emit) -> int:
+    """Pairs of colliding bodies that start at one point (budget.coincident_pairs): bodies
+    at the same position, emitted particles released at the same step."""
+    top = scene.data.get("collision")
+    if top is None or not top.get("enabled", True):
+        return 0
+    from vrsim_cli.model.budget import coincident_pairs
+
+    bodies = scene.data.get("bodies") or []
+    keys, movable = [], []
+    for i, (kind, shape) in enumerate(zip(kinds, shapes)):
+        spec = (bodies[i].get("collision") or {}) if i < len(bodies) else {}
+        if shape is None or shape["type"] == "plane" or not spec.get("enabled", True):
+            continue
+        keys.append((tuple(float(x) for x in pos0[i]), int(emit[i])))
+        movable.append(kind != BODY_STATIC)
+    return coincident_pairs(keys, movable)
+
+
+def _memory_problems(scene: Scene, n_body: int, output: OutputSpec, frames, triangles,
+                     pairs: int):
+    """The run's memory estimate (model/budget.py) past its limit, located at what drives
+    it: the emitters or bodies, the frames, the largest mesh, or bodies at one point."""
+    from vrsim_cli.model.budget import budget_problem, estimate_mb
+
+    pixels = frames.width * frames.height if frames is not None else 0
+    terms = estimate_mb(n_body, output.format if output.path is not None else None, pixels,
+                        True, sum(n for _, n in triangles), pairs)
+    found = budget_problem(terms)
+    if found is None:
+        return []
+    message, main = found
+    data = scene.data
+    if main == "frames":
+        where, hint = ("output", "frames"), "render smaller frames (width x height)"
+    elif main == "meshes":
+        where = ("bodies", max(triangles, key=lambda t: t[1])[0], "shape", "file")
+        hint = "use meshes with fewer triangles"
+    elif main == "overlaps":
+        where = ("emitters",) if data.get("emitters") else ("bodies",)
+        hint = (f"{pairs} pairs of colliding bodies start at the same point: give them "
+                f"positions of their own, or let emitters release fewer particles per step")
+    else:
+        where = ("emitters",) if data.get("emitters") else ("bodies",)
+        hint = "use fewer bodies or particles" + (" (CSV output takes less than MCAP)"
+                                                   if output.format == "mcap" else "")
+    return [scene.problem(where, message, hint, at_key=main in ("bodies", "overlaps"))]
+
+
+def _mesh_file(scene: Scene, at: tuple, problems: list[Problem], triangles: list) -> str | None:
+    """The mesh file of the shape at `at`, checked once for every mesh body (also those
+    only drawn or written to MCAP): a regular file that trimesh reads, with at most
+    MAX_MESH_TRIANGLES triangles, finite vertices and a size vrsim simulates."""
+    resolved = scene.input_path(at + ("file",), problems, MAX_MESH_BYTES)
+    if resolved is None:
+        return None
+    from vrsim_cli.maths.meshes import load_mesh  # trimesh: only mesh scenes pay for it
+
+    try:
+        mesh = load_mesh(str(resolved), float(scene.get(at + ("scale",), 1.0)))
+        triangles.append((at[1], len(mesh.faces)))
+    except ValueError as exc:
+        problems.append(scene.problem(at + ("file",), str(exc).replace(
+            f"'{resolved}'", f"'{scene.get(at + ('file',))}'"), "vrsim reads OBJ, STL, PLY, "
+            "GLB and glTF meshes"))
+        return None
+    return str(resolved)
 
 
 def _orientation(body: dict) -> np.ndarray:

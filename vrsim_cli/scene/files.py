@@ -36,7 +36,8 @@ STALE_AFTER_S = 60.0  # a partial untouched this long, and unlocked, belongs to 
 
 MAX_SCENE_BYTES = 4 * 1024 * 1024  # pure-Python YAML reads ~1 MB/s; a scene is hand-written
 MAX_MESH_BYTES = 32 * 1024 * 1024  # ~650k triangles of binary STL, before the triangle limit
-MAX_SENSOR_BYTES = 64 * 1024 * 1024  # input.file / input.tracker CSV, input.replay MCAP
+MAX_SENSOR_BYTES = 16 * 1024 * 1024  # input.file / input.tracker CSV (read into lists of
+# floats, ~15x the text), input.replay MCAP
 
 
 def kind_of(mode: int) -> str:

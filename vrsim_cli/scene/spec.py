@@ -36,7 +36,7 @@ MAX_FILE_BYTES = MAX_SCENE_BYTES  # a scene is text written by people; larger is
 MAX_NODES = 200_000  # values after alias expansion; bounds memory and validation time
 MAX_DEPTH = 64
 MAX_PROBLEMS = 100  # reported per file; the rest are counted
-MAX_BODIES = 1_000_000  # bodies plus emitted particles: beyond this a scene is a mistake
+MAX_BODIES = 400_000  # bodies plus emitted particles (model/budget.py: ~360k fit in memory)
 
 _STR_TAG = "tag:yaml.org,2002:str"
 
