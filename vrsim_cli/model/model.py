@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vrsim_cli.errors import InputError, Problem
+from vrsim_cli.errors import InputError, Problem, format_key_path
 from vrsim_cli.maths.geometry import ANALYTIC
 from vrsim_cli.maths.spatial import (IDENTITY_QUAT, quat_from_axis_angle, quat_from_euler_deg,
                                quat_normalize, quat_rotating, unit)
@@ -242,6 +242,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         shapes.extend([sphere] * count)
         emit.extend(particles["emit_step"])
 
+    problems.extend(_overwritten_inputs(scene, output, shapes))
     problems.extend(_memory_problems(scene, len(names), output, frames, triangles,
                                      _start_overlaps(scene, kinds, pos0, shapes, emit)))
     if problems:
@@ -385,6 +386,36 @@ def _tum_entity_problems(scene: Scene, output: OutputSpec, override, entities) -
     if problem is not None:
         shown = str(output.path) if override is not None else scene.get(("output", "file"))
         return [where(about(shown, problem))]
+    return []
+
+
+def _overwritten_inputs(scene: Scene, output: OutputSpec, shapes) -> list[Problem]:
+    """The output must not replace a file the scene reads (a mesh, a sensor file): the
+    run would destroy its own input (as it may not the scene file itself)."""
+    if output.path is None or str(output.path) == "-":
+        return []
+    try:
+        target = output.path.resolve()
+    except (OSError, RuntimeError):
+        return []
+    inputs = [(("bodies", i, "shape", "file"), shape.get("path"))
+              for i, shape in enumerate(shapes) if shape and shape["type"] == "mesh"]
+    spec = scene.data.get("input") or {}
+    inputs += [(("input", key), scene.base_dir.resolve() / spec[key])
+               for key in ("file", "tracker", "replay") if isinstance(spec.get(key), str)]
+    for key, path in inputs:
+        if path is None:
+            continue
+        try:
+            same = Path(path).resolve() == target or (output.format == "tum" and Path(
+                path).resolve().parent == target)
+        except (OSError, RuntimeError, ValueError):
+            continue
+        if same:
+            where = ("output", "file") if output.path is not None and ("output", "file") \
+                in scene.value_pos else key
+            return [scene.problem(where, f"the output would overwrite {format_key_path(key)} "
+                                  f"('{scene.get(key)}'), which this scene reads")]
     return []
 
 
