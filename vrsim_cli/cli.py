@@ -41,7 +41,7 @@ def _reports_errors(command):
                 click.echo(f"error: {line}", err=True)
             sys.exit(exc.exit_code)
         except VrsimError as exc:
-            click.echo(f"error: {exc}", err=True)
+            click.echo(f"error: {printable(str(exc))}", err=True)  # may quote a name
             sys.exit(exc.exit_code)
         except KeyboardInterrupt:  # Ctrl-C outside the loop: nothing was written yet
             click.echo("interrupted", err=True)
@@ -268,12 +268,13 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     if failure is not None:
         kept = f"; output up to the last good state kept in {_shown_path(model)}" \
             if writer is not None else ""
-        click.echo(f"error: {failure}{kept}", err=True)
+        click.echo(f"error: {printable(str(failure))}{kept}", err=True)  # names a body
         sys.exit(failure.exit_code)
     _summary(model, result, say, profile, realtime)
     if frames is not None:
         say(f"frames: {frames.images} images of {model.frames.width}x{model.frames.height} px "
-            f"-> {model.frames.dir}" + (f", video {video}" if video else ""))
+            f"-> {printable(str(model.frames.dir))}" + (f", video {printable(video)}"
+                                                       if video else ""))
     if signals.received is not None:  # during the loop, or while the output was finalised
         name = signal.Signals(signals.received).name
         click.echo(f"interrupted by {name} at t = {result.state.t:.6g} s; output finalised",
@@ -352,11 +353,11 @@ def validate(scene_files, quiet):
             continue
         if not quiet:
             impacts = f", {model.response.impacts} impacts" if model.response else ""
-            click.echo(f"{file}: ok ({model.n_body} bodies, {model.duration:g} s in "
+            click.echo(f"{printable(file)}: ok ({model.n_body} bodies, {model.duration:g} s in "
                        f"{model.n_steps} steps of {model.dt:.6g} s, {model.integrator}"
                        f"{impacts})")
             for note in model.notes:
-                click.echo(f"note: {file}: {note}", err=True)
+                click.echo(f"note: {printable(file)}: {printable(note)}", err=True)
     sys.exit(EXIT_INPUT if failed else 0)
 
 
@@ -377,7 +378,8 @@ def mass_properties(scene_file, as_json):
     if as_json:
         click.echo(json.dumps(rows, indent=2))
     else:
-        click.echo(format_report(rows, int(scene.data.get("dimension", 3))))
+        for line in format_report(rows, int(scene.data.get("dimension", 3))).splitlines():
+            click.echo(printable(line))  # body names come from the scene
 
 
 # ----------------------------------------------------------------------------- schema
@@ -415,22 +417,26 @@ def info(trajectory_file, as_json):
     if as_json:
         click.echo(json.dumps(summary, indent=2))
         return
-    click.echo(f"{trajectory_file}: {traj.format}, {len(traj.tracks)} entities, "
+    # Entity names, topics, schema names and metadata come from the file: escaped, so a
+    # hostile file cannot move the cursor, retitle the terminal or overwrite a line (\r).
+    click.echo(f"{printable(trajectory_file)}: {traj.format}, {len(traj.tracks)} entities, "
                f"{summary['samples']} samples")
     if len(times):
         click.echo(f"time: {summary['start_s']:.6g} .. {summary['end_s']:.6g} s "
                    f"(duration {summary['duration_s']:.6g} s)")
     names = list(traj.tracks)
     shown = ", ".join(names[:10]) + (f", ... ({len(names) - 10} more)" if len(names) > 10 else "")
-    click.echo(f"entities: {shown}")
+    click.echo(printable(f"entities: {shown}"))
     if traj.channels:
         click.echo("channels:")
         for ch in summary["channels"]:
-            click.echo(f"  {ch['topic']:<16} {ch['schema']:<26} {ch['messages']} messages")
+            click.echo(printable(f"  {ch['topic']:<16} {ch['schema']:<26} {ch['messages']} "
+                                 f"messages"))
     made = summary["vrsim"]
     if made:
-        click.echo(f"made by vrsim {made.get('version', '?')} from {made.get('scene_file', '?')}"
-                   f" (dt {made.get('dt', '?')} s, {made.get('integrator', '?')})")
+        click.echo(printable(f"made by vrsim {made.get('version', '?')} from "
+                             f"{made.get('scene_file', '?')} (dt {made.get('dt', '?')} s, "
+                             f"{made.get('integrator', '?')})"))
 
 
 # ----------------------------------------------------------------------- collision-proxies
@@ -460,11 +466,11 @@ def collision_proxies(scene_file, samples, as_json):
         click.echo(json.dumps(report, indent=2))
         return
     if not report:
-        click.echo(f"{scene_file}: no mesh bodies, nothing to compare")
+        click.echo(f"{printable(scene_file)}: no mesh bodies, nothing to compare")
         return
     for body in report:
-        click.echo(f"{body['body']} ({Path(body['file']).name}, {body['triangles']} "
-                   f"triangles, uses {body['geometry']}):")
+        click.echo(printable(f"{body['body']} ({Path(body['file']).name}, "
+                             f"{body['triangles']} triangles, uses {body['geometry']}):"))
         click.echo(f"  {'proxy':<7} {'hausdorff m':>12} {'proxy->mesh':>12} "
                    f"{'mesh->proxy':>12} {'volume ratio':>13}")
         for row in body["proxies"]:
@@ -640,7 +646,7 @@ def compare(a, b, atol, rtol, angle_tol, overrides, allow_missing_entities, show
         click.echo(json.dumps(report.as_dict(), indent=2))
     else:
         for line in format_report(report, show_all=show_all):
-            click.echo(line)
+            click.echo(printable(line))  # entity names come from the files
     sys.exit(0 if report.ok else 1)
 
 
