@@ -16,7 +16,7 @@ PROXY_SAMPLES = 2000  # points sampled on each surface for the proxy error (plus
 # What vrsim simulates (the scene's lengths have the same range, scene/limits.py): a mesh
 # beyond these made qhull fail, scipy's bounding sphere report "Improper input", and a
 # million triangles took minutes and gigabytes for collision and MCAP.
-MAX_MESH_TRIANGLES = 200_000
+MAX_MESH_TRIANGLES = 100_000  # the obb proxy of 100000 takes ~7 s, of 200000 ~60 s
 MIN_MESH_SIZE_M, MAX_MESH_SIZE_M = 1e-6, 1e6  # the mesh's largest extent, after scale
 FLAT = 1e-9  # a mesh thinner than this fraction of its size in some direction is flat
 
@@ -84,11 +84,15 @@ def proxies(mesh) -> dict:
     sphere {centre, radius}; obb {centre, quat, half}; aabb {vertices}; hull {vertices,
     faces}; mesh {vertices, faces}. Raises ValueError (with the reason) for a flat mesh,
     which has none but `mesh`, or when qhull or scipy fail on it."""
+    return _checked(mesh, ("sphere", "obb", "aabb", "hull", "mesh"))
+
+
+def _checked(mesh, names) -> dict:
     problem = solid_problem(mesh)
     if problem is not None:
         raise ValueError(f"the mesh {problem}; use collision geometry 'mesh' (its triangles)")
     try:
-        return _proxies(mesh)
+        return _proxies(mesh, names)
     except (RuntimeError, ValueError, TypeError, ArithmeticError, IndexError,
             ImportError) as exc:  # QhullError is a RuntimeError
         detail = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
@@ -100,25 +104,31 @@ def proxy(mesh, name: str) -> dict:
     if name == "mesh":
         return {"vertices": np.asarray(mesh.vertices, float),
                 "faces": np.asarray(mesh.faces, np.int64)}
-    return proxies(mesh)[name]
+    return _checked(mesh, (name,))[name]
 
 
-def _proxies(mesh) -> dict:
-    centre, radius = mesh.bounding_sphere.primitive.center, \
-        float(mesh.bounding_sphere.primitive.radius)
-    obb = mesh.bounding_box_oriented.primitive
-    hull = mesh.convex_hull
-    return {
-        "sphere": {"centre": np.asarray(centre, float), "radius": radius},
-        "obb": {"centre": np.asarray(obb.transform[:3, 3], float),
-                "quat": quat_from_matrix(obb.transform[:3, :3]),
-                "half": 0.5 * np.asarray(obb.extents, float)},
-        "aabb": {"vertices": np.asarray(hull.vertices, float)},
-        "hull": {"vertices": np.asarray(hull.vertices, float),
-                 "faces": np.asarray(hull.faces, np.int64)},
-        "mesh": {"vertices": np.asarray(mesh.vertices, float),
-                 "faces": np.asarray(mesh.faces, np.int64)},
-    }
+def _proxies(mesh, names) -> dict:
+    """The proxies in `names` only: the smallest enclosing sphere and the oriented box of
+    a 200000-triangle mesh take tens of seconds each, and a body needs one of them."""
+    out = {}
+    if "sphere" in names:
+        sphere = mesh.bounding_sphere.primitive
+        out["sphere"] = {"centre": np.asarray(sphere.center, float),
+                         "radius": float(sphere.radius)}
+    if "obb" in names:
+        obb = mesh.bounding_box_oriented.primitive
+        out["obb"] = {"centre": np.asarray(obb.transform[:3, 3], float),
+                      "quat": quat_from_matrix(obb.transform[:3, :3]),
+                      "half": 0.5 * np.asarray(obb.extents, float)}
+    if "aabb" in names or "hull" in names:
+        hull = mesh.convex_hull
+        out["aabb"] = {"vertices": np.asarray(hull.vertices, float)}
+        out["hull"] = {"vertices": np.asarray(hull.vertices, float),
+                       "faces": np.asarray(hull.faces, np.int64)}
+    if "mesh" in names:
+        out["mesh"] = {"vertices": np.asarray(mesh.vertices, float),
+                       "faces": np.asarray(mesh.faces, np.int64)}
+    return out
 
 
 def proxy_surface(mesh, name: str, p: dict):
