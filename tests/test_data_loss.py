@@ -544,3 +544,37 @@ def test_a_signal_during_start_up_is_a_clean_exit(write_scene, tmp_path, sig, mo
     assert proc.returncode == {"SIGINT": 130, "SIGTERM": 143}[sig], proc.stderr
     assert proc.stderr == f"interrupted by {sig}; nothing was written\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml"]
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """A 128 KiB tmpfs: a real file system that fills up (needs root; skipped otherwise)."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=128k", "tmpfs", str(mount)],
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.strip()}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", str(mount)], check=False)
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_a_really_full_disk_keeps_the_previous_output(tiny_disk, references, fmt):
+    """On a file system that really runs out of space (ENOSPC from the kernel, not a
+    patched call), at a point that depends on how much the previous output and the other
+    files take: every format fails with exit 1, and nothing of the user's changes."""
+    out, before = prepare(tiny_disk, fmt)
+    # fill the disk so that only part of the new output fits
+    _, tum_files, bytes_ref = references[fmt]
+    size = len(bytes_ref) if bytes_ref is not None else sum(
+        len(c) for n, (_, c) in tum_files.items() if n.endswith(".tum"))
+    free = os.statvfs(tiny_disk).f_bavail * os.statvfs(tiny_disk).f_frsize
+    (tiny_disk / "filler").write_bytes(b"x" * max(0, free - size // 2))
+    before = snapshot(tiny_disk / "w")
+    proc = child(tiny_disk, fmt)
+    assert proc.returncode == 1, proc.stderr
+    assert "No space left on device" in proc.stderr and "Traceback" not in proc.stderr
+    assert snapshot(tiny_disk / "w") == before
