@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 import os
-import re
 import tempfile
 import time
 from datetime import timedelta
@@ -33,6 +32,7 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from test_hostile_input import _assert_located
 from vrsim_cli.cli import cli
 from vrsim_cli.scene.spec import scene_schema
 from vrsim_cli.tools.trajectory import read_trajectory
@@ -221,7 +221,6 @@ def _cube() -> bytes:
 
 
 CUBE = _cube()
-LOCATED = re.compile(r"^error: (?P<file>[^\n]+?)(?::\d+:\d+)?: .+$")
 STATS = {"examples": 0, "valid": 0, "ran": 0, "codes": {}, "seconds": 0.0, "keys": set()}
 
 
@@ -287,17 +286,9 @@ def check(doc) -> None:
 
 
 def located(result, scene: Path) -> None:
-    assert "Traceback" not in result.output
-    if result.exit_code != 2:
-        return
-    lines = result.stderr.splitlines()
-    assert lines, "exit 2 without a message"
-    for line in lines:
-        match = LOCATED.match(line)
-        # the scene, a file it reads (a sensor CSV: its own line), or an option
-        assert match and (match["file"].startswith(str(scene.parent) + os.sep) or match[
-            "file"] in ("command line (--duration)", "command line (--dt)")), line
-        assert line.isprintable(), line  # escaped: no control character reaches the terminal
+    # the scene, a file it reads (a sensor CSV: its own line), or an option
+    _assert_located(result, scene, lambda file: file.startswith(str(scene.parent) + os.sep)
+                    or file in ("command line (--duration)", "command line (--dt)"))
 
 
 @settings(max_examples=int(os.environ.get("VRSIM_SCHEMA_EXAMPLES", 1000)), derandomize=True, database=None, deadline=timedelta(seconds=20),

@@ -151,23 +151,31 @@ def is_partial(name: str) -> bool:
         is not None
 
 
+def _target_stat(path: Path):
+    """(os.lstat of an output target, None) or (None, why it cannot be written, or None
+    when it is simply absent)."""
+    try:
+        if not path.parent.is_dir():
+            return None, f"folder '{path.parent}' does not exist"
+        return os.lstat(path), None
+    except FileNotFoundError:
+        return None, _name_problem(path)
+    except OSError as exc:
+        if exc.errno == errno.ENAMETOOLONG:
+            return None, _name_problem(path) or "the name is too long"
+        return None, f"cannot write: {exc.strerror or exc}"
+    except ValueError:
+        return None, "a path cannot hold a NUL character"
+
+
 def file_target_problem(path: Path) -> str | None:
     """Why a CSV or MCAP trajectory cannot be written to `path`, or None. The target must
     be absent or a regular file in an existing folder."""
     if str(path) == STDOUT:
         return None
-    try:
-        if not path.parent.is_dir():
-            return f"folder '{path.parent}' does not exist"
-        st = os.lstat(path)
-    except FileNotFoundError:
-        return _name_problem(path)
-    except OSError as exc:
-        if exc.errno == errno.ENAMETOOLONG:
-            return _name_problem(path) or "the file name is too long"
-        return f"cannot write: {exc.strerror or exc}"
-    except ValueError:
-        return "a path cannot hold a NUL character"
+    st, problem = _target_stat(path)
+    if st is None:
+        return problem
     if stat.S_ISDIR(st.st_mode):
         return "is a folder; give a file name"
     if not stat.S_ISREG(st.st_mode):
@@ -184,18 +192,9 @@ def tum_folder_problem(folder: Path, entities=None, scene_file=None) -> str | No
     removes anything else. With `entities` (the names this run writes), `.tum` files of
     other entities are refused too: they would be left beside the new ones as a mix of two
     runs. `scene_file`: the scene, which must not be in the folder."""
-    try:
-        if not folder.parent.is_dir():
-            return f"folder '{folder.parent}' does not exist"
-        st = os.lstat(folder)
-    except FileNotFoundError:
-        return _name_problem(folder)
-    except OSError as exc:
-        if exc.errno == errno.ENAMETOOLONG:
-            return _name_problem(folder) or "the folder name is too long"
-        return f"cannot write: {exc.strerror or exc}"
-    except ValueError:
-        return "a path cannot hold a NUL character"
+    st, problem = _target_stat(folder)
+    if st is None:
+        return problem
     if stat.S_ISLNK(st.st_mode):
         return "is a symbolic link; give the folder it points to"
     if not stat.S_ISDIR(st.st_mode):
