@@ -578,3 +578,15 @@ def test_a_really_full_disk_keeps_the_previous_output(tiny_disk, references, fmt
     assert proc.returncode == 1, proc.stderr
     assert "No space left on device" in proc.stderr and "Traceback" not in proc.stderr
     assert snapshot(tiny_disk / "w") == before
+
+
+@pytest.mark.parametrize("kind", ["fifo", "link-to-file", "link-to-dev-null", "folder"])
+def test_special_video_targets_are_refused(invoke, write_scene, tmp_path, kind):
+    """The video is renamed over its target too: the same kinds are refused."""
+    target = make_special(tmp_path, kind).rename(tmp_path / "v.mp4")
+    scene = write_scene(SCENE)
+    before = snapshot(tmp_path)
+    result = invoke("run", scene, "--frames", tmp_path / "f", "--video", target)
+    assert result.exit_code == 2 and "--video" in result.stderr  # (click refuses folders)
+    assert f"'{target}' is " in result.stderr or "is a directory" in result.stderr
+    assert snapshot(tmp_path) == before

@@ -149,3 +149,16 @@ def _sphere_stl(n_tri: int) -> bytes:
     rec = np.zeros(len(tris), dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
     rec["v"] = tris
     return b"\0" * 80 + np.uint32(len(tris)).tobytes() + rec.tobytes()
+
+
+def test_a_gif_that_would_hold_too_many_images_is_refused_before_the_run(invoke, write_scene,
+                                                                         tmp_path):
+    """A GIF keeps every image until the run ends (10001 images of 640 x 480 px: 8.8 GB);
+    an MP4 is streamed. Refused before anything is rendered or written."""
+    scene = write_scene(HEAD.replace("duration: 0.02", "duration: 100") +
+                        "bodies: [{name: a, mass: 1}]\n")
+    result = invoke("run", scene, "--frames", tmp_path / "f", "--video", tmp_path / "v.gif")
+    assert result.exit_code == 2
+    assert "a GIF keeps every image in memory until the run ends: 10001 images of 640x480 " \
+           "px take about 8790 MB" in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml"]

@@ -300,8 +300,23 @@ def _open_frames(model, video: str | None):
 
     spec = model.frames
     if video is not None:
+        from vrsim_cli.model.budget import MAX_RUN_MB, gif_mb
+        from vrsim_cli.scene.files import about, file_target_problem
         from vrsim_cli.writers.video import check_video
+
+        problem = file_target_problem(Path(video))  # not a device, FIFO, link or folder
+        if problem is not None:
+            raise click.UsageError(printable(f"--video {about(video, problem)}"))
         check_video(Path(video))
+        if Path(video).suffix.lower() == ".gif":  # Pillow keeps a GIF's images in memory
+            images = -(-model.n_frames // spec.every) + 1
+            held = gif_mb(images, spec.width * spec.height)
+            if held > MAX_RUN_MB / 2:
+                raise click.UsageError(
+                    f"--video {printable(video)}: a GIF keeps every image in memory until "
+                    f"the run ends: {images} images of {spec.width}x{spec.height} px take "
+                    f"about {held:.0f} MB (vrsim runs up to {MAX_RUN_MB} MB); use .mp4 "
+                    f"(streamed), fewer images (output.frames.every) or smaller frames")
     renderer = open_renderer(model, spec.width, spec.height, spec.camera)
     sink = None
     if video is not None:

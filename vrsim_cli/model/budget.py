@@ -46,6 +46,12 @@ def estimate_mb(n_body: int, output_format: str | None, pixels: int, video: bool
     return terms
 
 
+def gif_mb(images: int, pixels: int) -> float:
+    """MB a GIF video holds until the run ends: every RGB image (imageio/Pillow write a
+    GIF at once). An MP4 is streamed and costs VIDEO_MB whatever its length."""
+    return images * pixels * 3 / 2 ** 20
+
+
 def budget_problem(terms: dict) -> tuple[str, str] | None:
     """(message, the term that drives it) when the estimate passes MAX_RUN_MB, or None."""
     if terms["total"] <= MAX_RUN_MB:
