@@ -139,8 +139,12 @@ def _range_text(kind: str, how: str) -> str:
     if low > 0:
         return f"{what} must lie between {low:g} and {high:g}{unit}"
     if kind in SIGNED and how != "norm":
-        return f"{what} must lie within +-{high:g}{unit}"
-    return f"{what} must be at most {high:g}{unit}"
+        return f"{what} must lie within +-{_num(high)}{unit}"
+    return f"{what} must be at most {_num(high)}{unit}"
+
+
+def _num(x: float) -> str:
+    return "299792458" if x == C else f"{x:g}"  # c in full, not 2.99792e+08
 
 
 def limit_issues(data: dict) -> Iterator[tuple[tuple, str, str]]:
