@@ -22,6 +22,7 @@ LAYERS = {
     "vrsim_cli.maths": 0,
     "vrsim_cli.scene": 1,
     "vrsim_cli.model": 2,
+    "vrsim_cli.kernels": 3,  # compiled loops of the stages: arrays in, arrays out
     "vrsim_cli.stages": 4,
     "vrsim_cli.render": 4,  # loop stage 3, handed to the loop as a callback
     "vrsim_cli.loop": 5,

@@ -188,6 +188,7 @@ def _output_target(output: str | None, fmt: str | None):
 def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet,
         frames_dir, video, tolerance):
     """Run SCENE_FILE and write its trajectory."""
+    from vrsim_cli.loop import prepare as prepare_kernels
     from vrsim_cli.loop import run as run_loop
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.model.state import make_state
@@ -211,6 +212,7 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         say(f"note: dt = {model.dt_requested:g} s does not divide the frame interval "
             f"1/{model.frame_rate:g} s; using dt = {model.dt:.6g} s "
             f"({model.steps_per_frame} steps per frame)", err=True)
+    prepare_kernels(model, say)  # compiled once after an install; before any output
     writer = open_writer(model, model.output.path, model.output.format) \
         if model.output.path is not None else None
     progress = _Progress(model, enabled=not quiet)

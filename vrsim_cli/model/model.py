@@ -108,6 +108,9 @@ class Model:
     # model.response.ResponseModel: how contacts change the motion (slide
     # 5.4.2); None without a collision block or with `collision.response: none` for all.
     response: object | None = None
+    # Arrays the compiled kernels take, built from the fields above on first use (not
+    # part of the model's value: `dataclasses.replace` starts a fresh cache).
+    cache: dict = field(default_factory=dict, compare=False, repr=False, init=False)
 
     @property
     def n_body(self) -> int:
