@@ -616,8 +616,8 @@ def sweep(scene_files, settings, reference, folder, jobs, ray_address, resume, q
             executor.close()
         written = sweep_module.write_report(plan, out, describe(executor))
     skipped = f", {result.skipped} already in the table" if result.skipped else ""
-    click.echo(f"sweep: {result.done} runs in {result.wall_s:.3g} s on "
-               f"{describe(executor)}{skipped}; {len(result.failed)} failed")
+    click.echo(f"sweep: {result.done} runs in {result.wall_s:.3g} s {describe(executor)}"
+               f"{skipped}; {len(result.failed)} failed")
     for line in sweep_module.fronts_summary(plan, out):
         click.echo(line)
     plots = len(written) - 1
@@ -802,10 +802,10 @@ def regress(folder, names, golden, update, junit, jobs, ray_address, atol, rtol,
     if update:
         click.echo(f"regress --update: {len(result.cases) - len(not_written)} goldens "
                    f"written or unchanged in {golden}, {len(not_written)} not written "
-                   f"({result.wall_s:.3g} s on {describe(executor)})")
+                   f"({result.wall_s:.3g} s {describe(executor)})")
         sys.exit(1 if not_written else 0)
     click.echo(f"regress: {counts['tests']} scenes, {passed} passed, {counts['failures']} "
-               f"failed, {counts['errors']} errors ({result.wall_s:.3g} s on "
+               f"failed, {counts['errors']} errors ({result.wall_s:.3g} s "
                f"{describe(executor)})" + (f"; JUnit XML in {junit}" if junit else ""))
     sys.exit(0 if result.ok else 1)
 

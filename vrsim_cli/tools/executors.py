@@ -309,11 +309,12 @@ class RayExecutor:
 
 
 def describe(executor) -> str:
+    """`in this process`, `on 2 worker processes`, `on Ray (8 CPUs)`."""
     if executor.name == "serial":
         return "in this process"
     if executor.name == "local":
-        return f"{executor.workers} worker processes"
-    return f"Ray ({executor.workers} CPUs)"
+        return f"on {executor.workers} worker processes"
+    return f"on Ray ({executor.workers} CPUs)"
 
 
 __all__ = ["LocalPool", "RayExecutor", "Serial", "default_jobs", "describe", "make_executor"]

@@ -38,7 +38,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from vrsim_cli.errors import InputError, Problem, did_you_mean
+from vrsim_cli.errors import InputError, Problem, did_you_mean, format_key_path
 from vrsim_cli.tools.jobs import KEEP_TRAJECTORY, Job, pack_model
 
 RUNS_CSV = "runs.csv"
@@ -165,16 +165,28 @@ def parse_reference(texts: tuple[str, ...]) -> tuple[list[tuple[str, object]], P
 
 
 def _segments(key: str) -> list:
-    """`bodies[0].shape.radius` -> ['bodies', 0, 'shape', 'radius']; `bodies[my.ball]`
-    names an item whose name holds dots."""
+    """`bodies[0].shape.radius` -> ['bodies', 0, 'shape', 'radius']. Brackets hold an
+    index or a name (`bodies[my.ball]`); between them, every dot separates, so empty
+    segments stay (a name ending in a dot, `bodies.a..mass`, is 'a.' then 'mass')."""
     out: list = []
-    for part in re.findall(r"\[[^\]]*\]|[^.\[\]]+", key):
-        if part.startswith("["):
-            inner = part[1:-1].strip().strip("'\"")
-            out.append(int(inner) if inner.lstrip("-").isdigit() else ("name", inner))
-        else:
-            out.append(part)
+    pos = 0
+    for match in re.finditer(r"\[([^\]]*)\]", key):
+        out.extend(_plain(key[pos:match.start()], after_bracket=pos > 0))
+        inner = match.group(1).strip().strip("'\"")
+        out.append(int(inner) if re.fullmatch(r"-?[0-9]+", inner) else ("name", inner))
+        pos = match.end()
+    out.extend(_plain(key[pos:], after_bracket=pos > 0))
     return out
+
+
+def _plain(text: str, after_bracket: bool) -> list:
+    if after_bracket:
+        if not text:
+            return []
+        if not text.startswith("."):
+            return [text]  # `a[0]b`: kept whole, reported as an unknown key
+        text = text[1:]
+    return text.split(".") if text else []
 
 
 def _schema_here(node, root) -> list[dict]:
@@ -200,6 +212,10 @@ def _schema_here(node, root) -> list[dict]:
     return out
 
 
+def _is_array(node, root) -> bool:
+    return any(n.get("type") == "array" or "items" in n for n in _schema_here(node, root))
+
+
 def _schema_child(node, key, root):
     """The schema of `key` (a str property or an int item) under `node`, or None when the
     schema does not allow it. Also the property names known there (for hints)."""
@@ -223,80 +239,86 @@ def _schema_child(node, key, root):
 
 def resolve_key(scene, key: str, option: str) -> tuple:
     """The concrete key path (str and int parts) of `key` in `scene`, e.g.
-    ('bodies', 1, 'material', 'restitution'). Raises InputError naming what is wrong."""
+    ('bodies', 1, 'material', 'restitution'). List items are named by index or by name;
+    a dotted name is matched longest first, falling back to shorter ones when the rest of
+    the path does not resolve under it. Raises InputError naming what is wrong."""
     from vrsim_cli.scene.spec import scene_schema
 
-    root = scene_schema()
     where = f"command line ({option})"
     parts = _segments(key)
     if not parts:
         raise InputError([Problem(where, 0, 0, None, f"'{key}' is not a key path",
                                   "e.g. dt or bodies.ball.material.restitution")])
-    path: list = []
-    node, schema = scene.data, root
-    i = 0
-    while i < len(parts):
-        part = parts[i]
-        shown = ".".join(str(p) for p in path) or "the scene"
-        if isinstance(node, list) or (node is None and isinstance(part, (int, tuple))):
-            items = node or []
-            if isinstance(part, int):
-                if not -len(items) <= part < len(items):
-                    raise InputError([Problem(where, 0, 0, tuple(path), f"index {part} is "
-                                              f"outside the {len(items)} items of {shown}")])
-                index, used = part % len(items), 1
-            else:
-                index, used = _item_by_name(items, parts, i, shown, where, tuple(path))
-            schema = _schema_child(schema, 0, root)[0]
-            path.append(index)
-            node = items[index]
-            i += used
-            continue
-        if isinstance(part, tuple):
-            raise InputError([Problem(where, 0, 0, tuple(path), f"{shown} is not a list, "
-                                      f"so [{part[1]}] names nothing")])
-        if isinstance(part, int):
-            raise InputError([Problem(where, 0, 0, tuple(path), f"{shown} is not a list, "
-                                      f"so [{part}] names nothing")])
-        if node is not None and not isinstance(node, dict):
-            raise InputError([Problem(where, 0, 0, tuple(path), f"{shown} is a value, not "
-                                      f"a mapping: it has no key '{part}'")])
-        child, names = _schema_child(schema, part, root)
-        if child is None:
-            raise InputError([Problem(where, 0, 0, tuple(path) + (part,),
-                                      f"unknown key '{part}' in {shown}",
-                                      did_you_mean(part, names) or (
-                                          "allowed here: " + ", ".join(sorted(set(names)))
-                                          if names else None))])
-        path.append(part)
-        schema = child
-        node = node.get(part) if isinstance(node, dict) else None
-        i += 1
-    return tuple(path)
+    return _resolve(scene.data, scene_schema(), scene_schema(), parts, 0, (), where)
 
 
-def _item_by_name(items: list, parts: list, i: int, shown: str, where: str, at: tuple):
-    """(index, segments used) of the item named by parts[i] (or by several segments
-    joined with dots: names may hold dots)."""
+def _resolve(node, schema, root, parts: list, i: int, path: tuple, where: str) -> tuple:
+    if i == len(parts):
+        return path
     part = parts[i]
-    names = [item.get("name") for item in items if isinstance(item, dict)]
+    shown = format_key_path(path) if path else "the scene"
+    if isinstance(node, list) or (node is None and _is_array(schema, root)):
+        items = node or []
+        item_schema = _schema_child(schema, 0, root)[0]
+        if isinstance(part, int):
+            if not -len(items) <= part < len(items):
+                raise InputError([Problem(where, 0, 0, path, f"index {part} is outside the "
+                                          f"{len(items)} items of {shown}")])
+            index = part % len(items)
+            return _resolve(items[index], item_schema, root, parts, i + 1, path + (index,),
+                            where)
+        first_error = None
+        for index, used in _items_named(items, parts, i):
+            try:
+                return _resolve(items[index], item_schema, root, parts, i + used,
+                                path + (index,), where)
+            except InputError as exc:
+                first_error = first_error or exc
+        if first_error is not None:
+            raise first_error
+        wanted = part[1] if isinstance(part, tuple) else str(part)
+        names = [item.get("name") for item in items if isinstance(item, dict)]
+        what = {"bodies": "body", "emitters": "emitter", "springs": "spring"}.get(
+            str(path[-1]) if path else "", "item")
+        raise InputError([Problem(where, 0, 0, path, f"no {what} named '{wanted}' in "
+                                                     f"{shown}",
+                                  did_you_mean(wanted, [n for n in names if n]))])
+    if isinstance(part, (int, tuple)):
+        label = part if isinstance(part, int) else part[1]
+        raise InputError([Problem(where, 0, 0, path, f"{shown} is not a list, so "
+                                                     f"[{label}] names nothing")])
+    if node is not None and not isinstance(node, dict):
+        raise InputError([Problem(where, 0, 0, path, f"{shown} is a value, not a mapping: "
+                                                     f"it has no key '{part}'")])
+    child, names = _schema_child(schema, part, root)
+    if child is None:
+        raise InputError([Problem(where, 0, 0, path + (part,), f"unknown key '{part}' in "
+                                                               f"{shown}",
+                                  did_you_mean(part, names) or (
+                                      "allowed here: " + ", ".join(sorted(set(names)))
+                                      if names else None))])
+    return _resolve(node.get(part) if isinstance(node, dict) else None, child, root, parts,
+                    i + 1, path + (part,), where)
+
+
+def _items_named(items: list, parts: list, i: int) -> list:
+    """[(index, segments used)] of the items whose name is parts[i], or several segments
+    from i joined by dots (names may hold dots), the longest first."""
+    part = parts[i]
     if isinstance(part, tuple):
-        candidates = [(part[1], 1)]
+        wanted = [(part[1], 1)]
     else:
-        candidates = []
-        for j in range(len(parts), i, -1):  # the longest dotted name first
+        wanted = []
+        for j in range(len(parts), i, -1):
             chunk = parts[i:j]
             if all(isinstance(c, str) for c in chunk):
-                candidates.append((".".join(chunk), j - i))
-    for name, used in candidates:
+                wanted.append((".".join(chunk), j - i))
+    found = []
+    for name, used in wanted:
         for index, item in enumerate(items):
             if isinstance(item, dict) and item.get("name") == name:
-                return index, used
-    wanted = candidates[-1][0] if candidates else str(part)
-    what = {"bodies": "body", "emitters": "emitter", "springs": "spring"}.get(
-        str(at[-1]) if at else "", "item")
-    raise InputError([Problem(where, 0, 0, at, f"no {what} named '{wanted}' in {shown}",
-                              did_you_mean(wanted, [n for n in names if n]))])
+                found.append((index, used))
+    return found
 
 
 def set_value(data, path: tuple, value) -> None:

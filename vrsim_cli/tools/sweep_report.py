@@ -73,7 +73,7 @@ def scene_rows(plan, rows: list[dict]) -> dict:
 def markdown(plan, rows: list[dict], executor_text: str, machine: dict) -> str:
     refs = {r["run"]: r for r in rows if r.get("role") == "reference"}
     lines = ["# vrsim sweep", "",
-             f"Runs: {executor_text}. Machine: {machine}.", "",
+             f"Runs {executor_text}. Machine: {machine}.", "",
              "Wall time is the simulation loop of one run (recording the samples excluded; "
              "no repeats). Errors are the largest over the entities and the sample times "
              "(the measures of `vrsim compare`); per entity in `entities.csv`.", ""]
