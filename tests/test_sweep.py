@@ -193,7 +193,8 @@ def test_every_variant_is_validated_before_anything_runs(write_scene, invoke, tm
                     "--set", "dt=0.01,0.02", "-o", out)
     assert result.exit_code == 2
     assert ("error: command line (--set bodies.ball.material.restitution=1.5): "
-            "bodies[1].material.restitution: must be <= 1, got 1.5") in result.stderr
+            f"bodies[1].material.restitution: must be <= 1, got 1.5 (scene {scene})") \
+        in result.stderr
     assert result.stderr.count("must be <= 1") == 1  # one problem, not one per variant
     assert not out.exists()  # nothing ran, nothing was written
 
@@ -486,3 +487,17 @@ def test_the_report_has_the_table_the_front_and_a_plot(write_scene, invoke, tmp_
     assert "drop: Pareto front (position):" in result.stdout
     assert (out / "drop.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "wrote" in result.stdout and "1 plot(s)" in result.stdout
+
+
+def test_ray_is_optional_and_its_address_cannot_swallow_a_scene(write_scene, invoke,
+                                                                  monkeypatch):
+    from vrsim_cli.tools.executors import make_executor
+
+    scene = write_scene(DROP)
+    result = invoke("sweep", "--ray", scene, "--set", "dt=0.01")
+    assert result.exit_code == 2 and "put --ray after the scene files" in result.stderr
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if Ray were not installed
+    with pytest.raises(InputError, match=r"pip install 'vrsim-cli\[ray\]'"):
+        make_executor(None, "")
+    result = invoke("sweep", scene, "--set", "dt=0.01", "--ray")
+    assert result.exit_code == 2 and "--ray needs Ray" in result.stderr

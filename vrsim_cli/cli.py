@@ -551,11 +551,16 @@ def _executor(jobs, ray_address):
     """The executor of --jobs / --ray (tools/executors.py)."""
     from vrsim_cli.tools.executors import make_executor
 
-    if ray_address is not None and ray_address.endswith((".yaml", ".yml")) \
-            and Path(ray_address).exists():
-        raise click.UsageError(f"--ray took '{ray_address}' as the cluster address: put "
-                               f"--ray after the scene files, or write --ray=ADDRESS")
     return make_executor(jobs, ray_address)
+
+
+def _ray_address(ctx, param, value):
+    """--ray [ADDRESS] takes the next word when it is not an option: refuse a scene file
+    there (`vrsim sweep --ray scene.yaml`) with the fix, not a missing-argument error."""
+    if value and Path(value).suffix in (".yaml", ".yml") and Path(value).exists():
+        raise click.BadParameter(f"'{value}' was taken as the cluster address: put --ray "
+                                 f"after the scene files, or write --ray=ADDRESS")
+    return value
 
 
 @cli.command()
@@ -574,8 +579,8 @@ def _executor(jobs, ray_address):
 @click.option("--jobs", type=click.IntRange(min=1), help="Worker processes (default: the "
               "machine's cores; 1: in this process).")
 @click.option("--ray", "ray_address", is_flag=False, flag_value="", default=None,
-              metavar="[ADDRESS]", help="Run on Ray: a local instance, or the cluster at "
-              "ADDRESS (pip install 'vrsim-cli[ray]').")
+              metavar="[ADDRESS]", callback=_ray_address, help="Run on Ray: a local "
+              "instance, or the cluster at ADDRESS (pip install 'vrsim-cli[ray]').")
 @click.option("--resume", is_flag=True, help="Continue the sweep in the output folder, "
               "skipping the runs its table already holds.")
 @click.option("-q", "--quiet", is_flag=True, help="Print only failures and the summary.")
@@ -714,7 +719,8 @@ def compare(a, b, atol, rtol, angle_tol, overrides, allow_missing_entities, show
 @click.option("--jobs", type=click.IntRange(min=1), help="Worker processes (default: the "
               "machine's cores; 1: in this process).")
 @click.option("--ray", "ray_address", is_flag=False, flag_value="", default=None,
-              metavar="[ADDRESS]", help="Run on Ray: local, or the cluster at ADDRESS.")
+              metavar="[ADDRESS]", callback=_ray_address, help="Run on Ray: local, or the "
+              "cluster at ADDRESS.")
 @click.option("--atol", type=_TOL, help="Default absolute tolerance (m, m/s, rad/s); "
               "replaces tolerances.yaml's default.")
 @click.option("--rtol", type=_TOL, help="Default relative tolerance.")

@@ -506,7 +506,7 @@ def _job(scene, name: str, params: dict, paths: dict, problems: list, sha: str,
     except InputError as exc:
         for p in exc.problems:
             if p.file.startswith("command line"):
-                problems.append(p)
+                problems.append(_in_scene(p, scene.file))
             else:  # a value that breaks something elsewhere: say which variant
                 problems.append(Problem(p.file, p.line, p.col, p.path,
                                         f"{p.message} [in the variant {label}]", p.hint))
