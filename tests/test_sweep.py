@@ -482,7 +482,7 @@ def test_the_report_has_the_table_the_front_and_a_plot(write_scene, invoke, tmp_
                     "-o", out, "--jobs", "1")
     assert result.exit_code == 0, result.output
     text = (out / "sweep.md").read_text()
-    assert "| dt | integrator | dt used (s) |" in text
+    assert "| dt | integrator | dt used (s) | integrator used |" in text
     assert "Pareto front, position error (fastest first):" in text
     assert "drop: Pareto front (position):" in result.stdout
     assert (out / "drop.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

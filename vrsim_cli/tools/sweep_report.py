@@ -96,7 +96,7 @@ def markdown(plan, rows: list[dict], executor_text: str, machine: dict) -> str:
             lines.append("")
         fronts = {col: {r["run"] for r in pareto(srows, col)} for col, _, _ in MEASURES
                   if measured(srows, col)}
-        head = [*plan.keys, "dt used (s)", "integrator", "status", "steps", "wall (ms)",
+        head = [*plan.keys, "dt used (s)", "integrator used", "status", "steps", "wall (ms)",
                 "position error (m)", "orientation error (rad)", "front"]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for r in srows:
@@ -132,6 +132,7 @@ def plot(plan, rows: list[dict], folder: Path) -> list[Path]:
         return []
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     along = "dt" if "dt" in plan.keys else (plan.keys[-1] if plan.keys else None)
     others = [k for k in plan.keys if k != along]
@@ -156,6 +157,10 @@ def plot(plan, rows: list[dict], folder: Path) -> list[Path]:
             ax.loglog([_float(r["wall_s"]) for r in front],
                       [max(_float(r[col]), ERROR_FLOOR) for r in front], "k--", lw=1,
                       label="Pareto front")
+            # 1-2-5 ticks labelled as plain numbers: sweeps often span less than a decade
+            ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))
+            ax.xaxis.set_minor_formatter(NullFormatter())
             ax.set_xlabel("wall time of the run (s)")
             ax.set_ylabel(f"largest {label} error ({unit})")
             ax.set_title(f"{name}: {label}" + (f", along {along}" if along else ""))
