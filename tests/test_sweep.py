@@ -314,6 +314,27 @@ def test_results_are_bit_identical_in_process_on_a_pool_and_on_ray(write_scene, 
     assert found["ray"] == found["serial"]
 
 
+def test_a_model_that_does_not_pickle_is_compiled_in_the_worker_alike(write_scene,
+                                                                       tmp_path, monkeypatch):
+    """The fallback for models that cannot be pickled: the job carries the validated
+    scene and the worker compiles it; the numbers are those of the pickled path."""
+    scene = write_scene(MIXED)
+    sets, ref = ["dt=0.01,0.005", "integrator=verlet,rk4"], ["integrator=rk4 dt=0.01"]
+    plan = plan_of(scene, sets, ref)
+    assert all(r.job.model is not None and r.job.scene is None for r in plan.runs)
+    sweep.run_sweep(plan, tmp_path / "pickled", Serial())
+    monkeypatch.setattr(sweep, "pack_model", lambda model: None)
+    fallback = plan_of(scene, sets, ref)
+    assert all(r.job.model is None and r.job.scene is not None for r in fallback.runs)
+    for name, executor in (("serial", Serial()), ("pool", LocalPool(2))):
+        try:
+            sweep.run_sweep(fallback, tmp_path / name, executor)
+        finally:
+            executor.close()
+        assert results(tmp_path / name) == results(tmp_path / "pickled")
+        assert entity_rows(tmp_path / name) == entity_rows(tmp_path / "pickled")
+
+
 class _Exit:
     """Unpickling this ends the process: a job that kills its worker."""
 

@@ -563,6 +563,16 @@ def _ray_address(ctx, param, value):
     return value
 
 
+def _executor_options(command):
+    """--jobs N and --ray [ADDRESS], shared by sweep and regress."""
+    command = click.option(
+        "--ray", "ray_address", is_flag=False, flag_value="", default=None,
+        metavar="[ADDRESS]", callback=_ray_address, help="Run on Ray: a local instance, or "
+        "the cluster at ADDRESS (pip install 'vrsim-cli[ray]').")(command)
+    return click.option("--jobs", type=click.IntRange(min=1), help="Worker processes "
+                        "(default: the machine's cores; 1: in this process).")(command)
+
+
 @cli.command()
 @click.argument("scene_files", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--set", "settings", multiple=True, metavar="KEY=V1,V2,...", help="Values of "
@@ -576,11 +586,7 @@ def _ray_address(ctx, param, value):
                    "file.")
 @click.option("-o", "--output", "folder", type=click.Path(file_okay=False), default="sweep",
               show_default=True, help="Folder for runs.csv, entities.csv, sweep.md, plots.")
-@click.option("--jobs", type=click.IntRange(min=1), help="Worker processes (default: the "
-              "machine's cores; 1: in this process).")
-@click.option("--ray", "ray_address", is_flag=False, flag_value="", default=None,
-              metavar="[ADDRESS]", callback=_ray_address, help="Run on Ray: a local "
-              "instance, or the cluster at ADDRESS (pip install 'vrsim-cli[ray]').")
+@_executor_options
 @click.option("--resume", is_flag=True, help="Continue the sweep in the output folder, "
               "skipping the runs its table already holds.")
 @click.option("-q", "--quiet", is_flag=True, help="Print only failures and the summary.")
@@ -716,11 +722,7 @@ def compare(a, b, atol, rtol, angle_tol, overrides, allow_missing_entities, show
               "state-hash pins from this run (review and commit them).")
 @click.option("--junit", "junit", type=click.Path(dir_okay=False), help="Also write the "
               "result as JUnit XML (one testcase per scene).")
-@click.option("--jobs", type=click.IntRange(min=1), help="Worker processes (default: the "
-              "machine's cores; 1: in this process).")
-@click.option("--ray", "ray_address", is_flag=False, flag_value="", default=None,
-              metavar="[ADDRESS]", callback=_ray_address, help="Run on Ray: local, or the "
-              "cluster at ADDRESS.")
+@_executor_options
 @click.option("--atol", type=_TOL, help="Default absolute tolerance (m, m/s, rad/s); "
               "replaces tolerances.yaml's default.")
 @click.option("--rtol", type=_TOL, help="Default relative tolerance.")
