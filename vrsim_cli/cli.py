@@ -627,7 +627,8 @@ def sweep(scene_files, settings, reference, folder, jobs, ray_address, resume, q
             executor.close()
         written = sweep_module.write_report(plan, out, describe(executor))
     skipped = f", {result.skipped} already in the table" if result.skipped else ""
-    click.echo(f"sweep: {result.done} runs in {result.wall_s:.3g} s {describe(executor)}"
+    runs = f"{result.done} run" + ("" if result.done == 1 else "s")
+    click.echo(f"sweep: {runs} in {result.wall_s:.3g} s {describe(executor)}"
                f"{skipped}; {len(result.failed)} failed")
     for line in sweep_module.fronts_summary(plan, out):
         click.echo(line)
@@ -753,6 +754,9 @@ def regress(folder, names, golden, update, junit, jobs, ray_address, atol, rtol,
     from vrsim_cli.tools.executors import describe
 
     folder_path, golden_path = Path(folder), Path(golden)
+    if junit and not Path(junit).resolve().parent.is_dir():
+        raise click.BadParameter(f"folder '{Path(junit).parent}' does not exist",
+                                 param_hint="--junit")
     default = None
     if atol is not None or rtol is not None or angle_tol is not None:
         default = dataclasses.replace(Tolerance(), **{k: v for k, v in (

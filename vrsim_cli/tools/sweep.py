@@ -38,7 +38,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from vrsim_cli.errors import InputError, Problem, did_you_mean, format_key_path
+from vrsim_cli.errors import (InputError, OutputError, Problem, did_you_mean,
+                              format_key_path)
 from vrsim_cli.tools.jobs import KEEP_TRAJECTORY, Job, pack_model
 
 RUNS_CSV = "runs.csv"
@@ -410,7 +411,7 @@ def plan_sweep(scene_files: list[str], settings: list[tuple[str, list]],
                          "KEY=VALUE pairs for a computed reference")
     plan = Plan(keys, reference_pairs=list(reference_pairs), reference_file=reference_file)
     problems: list[Problem] = []
-    for file in scene_files:
+    for file in dict.fromkeys(scene_files):  # a scene given twice runs once
         try:
             scene = load_scene(file)
         except InputError as exc:
@@ -543,14 +544,28 @@ class AppendTable:
     def __init__(self, path: Path, columns: tuple):
         self.path = path
         self.columns = columns
+        self.fd = None
         new = not path.exists() or path.stat().st_size == 0
-        self.fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        try:
+            self.fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        except OSError as exc:
+            raise OutputError(f"cannot write {path}: {exc.strerror}") from None
         if new:
-            os.write(self.fd, _csv_line(columns))
+            self._write(_csv_line(columns))
 
     def append(self, rows: list) -> None:
         if rows:
-            os.write(self.fd, b"".join(_csv_line(r) for r in rows))
+            self._write(b"".join(_csv_line(r) for r in rows))
+
+    def _write(self, data: bytes) -> None:
+        try:
+            written = os.write(self.fd, data)
+        except OSError as exc:  # a full disk: the rows before this one are all there
+            raise OutputError(f"cannot write {self.path}: {exc.strerror}; the rows "
+                              f"before this run are kept (--resume continues)") from None
+        if written != len(data):
+            raise OutputError(f"cannot write {self.path}: short write (disk full?); "
+                              f"--resume drops the cut row and continues")
 
     def close(self) -> None:
         if self.fd is not None:
@@ -610,7 +625,7 @@ def run_sweep(plan: Plan, folder: Path, executor, *, resume: bool = False,
     from vrsim_cli.writers.atomic import AtomicFile
 
     start = time.perf_counter()
-    folder.mkdir(parents=True, exist_ok=True)
+    _prepare(folder)
     runs_path, entities_path = folder / RUNS_CSV, folder / ENTITIES_CSV
     result = SweepResult(plan, folder)
     finished: dict = {}
@@ -652,6 +667,17 @@ def run_sweep(plan: Plan, folder: Path, executor, *, resume: bool = False,
         entity_table.close()
         result.wall_s = time.perf_counter() - start
     return result
+
+
+def _prepare(folder: Path) -> None:
+    """The output folder, made if needed. A file in its place is an input error; a folder
+    that cannot be made, an output error."""
+    if folder.exists() and not folder.is_dir():
+        raise InputError([Problem(str(folder), 0, 0, None, "is a file; -o names a folder")])
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot make the folder {folder}: {exc.strerror}") from None
 
 
 def _resume(plan: Plan, runs_path: Path, entities_path: Path, atomic) -> dict:

@@ -134,7 +134,10 @@ def plot(plan, rows: list[dict], folder: Path) -> list[Path]:
     import matplotlib.pyplot as plt
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
+    from vrsim_cli.errors import OutputError
+
     along = "dt" if "dt" in plan.keys else (plan.keys[-1] if plan.keys else None)
+    names = [name for name, _ in plan.scenes.values()]
     others = [k for k in plan.keys if k != along]
     written = []
     for file, srows in scene_rows(plan, rows).items():
@@ -167,11 +170,18 @@ def plot(plan, rows: list[dict], folder: Path) -> list[Path]:
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize=6)
         fig.tight_layout()
-        path = folder / f"{_file_name(name)}.png"
+        # scenes of one name (from different files) get the file's stem too
+        stem = name if names.count(name) == 1 else f"{name}-{Path(file).stem}"
+        path = folder / f"{_file_name(stem)}.png"
         tmp = path.with_name(f".{path.name}.partial")
-        fig.savefig(tmp, dpi=110, format="png")
-        plt.close(fig)
-        tmp.replace(path)  # atomic: a reader sees the old plot or the new one
+        try:
+            fig.savefig(tmp, dpi=110, format="png")
+            tmp.replace(path)  # atomic: a reader sees the old plot or the new one
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            raise OutputError(f"cannot write {path}: {exc.strerror}") from None
+        finally:
+            plt.close(fig)
         written.append(path)
     return written
 
