@@ -318,7 +318,7 @@ def test_a_model_that_does_not_pickle_is_compiled_in_the_worker_alike(write_scen
                                                                        tmp_path, monkeypatch):
     """The fallback for models that cannot be pickled: the job carries the validated
     scene and the worker compiles it; the numbers are those of the pickled path."""
-    scene = write_scene(MIXED)
+    scene = write_scene(DROP)
     sets, ref = ["dt=0.01,0.005", "integrator=verlet,rk4"], ["integrator=rk4 dt=0.01"]
     plan = plan_of(scene, sets, ref)
     assert all(r.job.model is not None and r.job.scene is None for r in plan.runs)
