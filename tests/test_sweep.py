@@ -522,3 +522,16 @@ def test_ray_is_optional_and_its_address_cannot_swallow_a_scene(write_scene, inv
         make_executor(None, "")
     result = invoke("sweep", scene, "--set", "dt=0.01", "--ray")
     assert result.exit_code == 2 and "--ray needs Ray" in result.stderr
+
+
+def test_a_worker_with_another_vrsim_version_refuses_the_job(write_scene):
+    """Results could differ in the last bits between versions: a node must match."""
+    import dataclasses
+
+    from vrsim_cli.tools import jobs
+
+    job = plan_of(write_scene(DROP), ["dt=0.01"]).runs[0].job
+    assert jobs.execute(job).status == "ok"
+    outcome = jobs.execute(dataclasses.replace(job, version="0.0.0-elsewhere"))
+    assert outcome.status == "error" and "install the same version on every node" in \
+        outcome.message
