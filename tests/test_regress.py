@@ -19,6 +19,7 @@ import pytest
 
 from conftest import REPO
 from vrsim_cli.tools import regress
+from vrsim_cli.tools.compare import Tolerance
 
 DROP = """\
 vrsim: 1
@@ -293,3 +294,23 @@ def test_bad_input_is_found_before_anything_runs(invoke, scenes, tmp_path):
     (golden / "spin.csv.gz").write_bytes(b"not gzip")
     result = regress_cli(invoke, scenes, golden)
     assert result.exit_code == 2 and "spin.csv.gz" in result.stderr
+
+
+def test_a_tol_option_keeps_the_scene_rtol_and_angle_tolerance(tmp_path):
+    """--tol sets atol (and the angle tolerance when given) of matching entities; the rest
+    comes from that scene's own tolerance, not from the default."""
+    file = tmp_path / "tolerances.yaml"
+    file.write_text("default: {atol: 1e-9, rtol: 1e-9, angle_tol: 1e-9}\n"
+                    "scenes:\n  spin: {rtol: 1e-3, angle_tol: 1e-4}\n")
+    tol = regress.tolerances_from_options(file, overrides=[("sp*:box", [0.5]),
+                                                           ("ball", [0.1, 0.2])])
+    spin, drop = tol.plan("spin"), tol.plan("drop")
+    assert spin.for_entity("box") == Tolerance(atol=0.5, rtol=1e-3, angle_tol=1e-4)
+    assert spin.for_entity("other").atol == 1e-9 and spin.for_entity("other").rtol == 1e-3
+    assert drop.for_entity("box").atol == 1e-9  # sp*: not this scene
+    assert (drop.for_entity("ball").atol, drop.for_entity("ball").angle_tol,
+            drop.for_entity("ball").rtol) == (0.1, 0.2, 1e-9)
+    # --atol replaces the default's atol only, and so that of scenes without their own
+    cli = regress.tolerances_from_options(file, atol=1e-3)
+    assert cli.plan("drop").default == Tolerance(atol=1e-3, rtol=1e-9, angle_tol=1e-9)
+    assert cli.plan("spin").default == Tolerance(atol=1e-3, rtol=1e-3, angle_tol=1e-4)

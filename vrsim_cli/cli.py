@@ -724,10 +724,11 @@ def compare(a, b, atol, rtol, angle_tol, overrides, allow_missing_entities, show
 @click.option("--junit", "junit", type=click.Path(dir_okay=False), help="Also write the "
               "result as JUnit XML (one testcase per scene).")
 @_executor_options
-@click.option("--atol", type=_TOL, help="Default absolute tolerance (m, m/s, rad/s); "
-              "replaces tolerances.yaml's default.")
-@click.option("--rtol", type=_TOL, help="Default relative tolerance.")
-@click.option("--angle-tol", type=_TOL, help="Default orientation tolerance in rad.")
+@click.option("--atol", type=_TOL, help="Default absolute tolerance (m, m/s, rad/s), "
+              "replacing tolerances.yaml's default atol.")
+@click.option("--rtol", type=_TOL, help="Default relative tolerance (likewise).")
+@click.option("--angle-tol", type=_TOL, help="Default orientation tolerance in rad "
+              "(likewise).")
 @click.option("--tol", "overrides", type=_ToleranceOverride(), multiple=True,
               help="[SCENE:]PATTERN=ATOL[,ANGLE_TOL]: per-entity tolerance (shell-style "
                    "patterns), for the scenes matching SCENE (default all); the last match "
@@ -747,34 +748,17 @@ def regress(folder, names, golden, update, junit, jobs, ray_address, atol, rtol,
     Exit 0 when every scene matches, 1 when one does not (or its run fails), 2 on bad
     input. Tolerances and goldens: docs/regression.md.
     """
-    import dataclasses
-
     from vrsim_cli.tools import regress as regress_module
-    from vrsim_cli.tools.compare import Tolerance
     from vrsim_cli.tools.executors import describe
 
     folder_path, golden_path = Path(folder), Path(golden)
     if junit and not Path(junit).resolve().parent.is_dir():
         raise click.BadParameter(f"folder '{Path(junit).parent}' does not exist",
                                  param_hint="--junit")
-    default = None
-    if atol is not None or rtol is not None or angle_tol is not None:
-        default = dataclasses.replace(Tolerance(), **{k: v for k, v in (
-            ("atol", atol), ("rtol", rtol), ("angle_tol", angle_tol)) if v is not None})
-    entity = []
-    for pattern, tols in overrides:
-        scene_pattern, _, entity_pattern = pattern.rpartition(":")
-        entity.append((scene_pattern or "*", entity_pattern or "*", tols))
     file = Path(tolerances_file) if tolerances_file else golden_path / regress_module.TOLERANCES
     if tolerances_file and not file.exists():
         raise click.BadParameter(f"no such file '{tolerances_file}'", param_hint="--tolerances")
-    tolerances = regress_module.load_tolerances(file, default)
-    # --tol: the atol (and angle tolerance) of the matching entities; rtol as the scene's
-    tolerances.entities.extend(
-        (sp, ep, dataclasses.replace(tolerances.scenes.get(sp, tolerances.default),
-                                     atol=tols[0], **({"angle_tol": tols[1]}
-                                                      if len(tols) > 1 else {})))
-        for sp, ep, tols in entity)
+    tolerances = regress_module.tolerances_from_options(file, atol, rtol, angle_tol, overrides)
     plan = regress_module.plan_regress(folder_path, golden_path, names, update=update,
                                        tolerances=tolerances, check_pins=not no_pins,
                                        samples=samples)

@@ -75,30 +75,55 @@ class Tolerances:
     default: object
     scenes: dict = field(default_factory=dict)
     entities: list = field(default_factory=list)
+    # --tol: [(scene pattern, entity pattern, atol, angle_tol or None)], after `entities`;
+    # rtol (and a missing angle_tol) from the scene's own tolerance
+    options: list = field(default_factory=list)
     source: str = ""
 
     def plan(self, scene: str):
         """The compare.TolerancePlan of one scene."""
+        import dataclasses
         import fnmatch
 
         from vrsim_cli.tools.compare import TolerancePlan
 
         base = self.scenes.get(scene, self.default)
-        overrides = tuple((entity, tol) for scene_pattern, entity, tol in self.entities
-                          if fnmatch.fnmatchcase(scene, scene_pattern))
-        return TolerancePlan(base, overrides)
+        overrides = [(entity, tol) for scene_pattern, entity, tol in self.entities
+                     if fnmatch.fnmatchcase(scene, scene_pattern)]
+        for scene_pattern, entity, atol, angle_tol in self.options:
+            if fnmatch.fnmatchcase(scene, scene_pattern):
+                overrides.append((entity, dataclasses.replace(
+                    base, atol=atol, angle_tol=base.angle_tol if angle_tol is None
+                    else angle_tol)))
+        return TolerancePlan(base, tuple(overrides))
 
 
-def load_tolerances(path: Path | None, default=None, entity_overrides=()) -> Tolerances:
-    """The tolerances of `path` (YAML; absent: compare's defaults), with `default` (a
-    compare.Tolerance from --atol/--rtol/--angle-tol) replacing the file's default and
-    `entity_overrides` ([(scene pattern, entity pattern, Tolerance)] from --tol) after the
-    file's. Raises InputError at FILE:LINE:COL for a bad file."""
+def tolerances_from_options(path: Path | None, atol=None, rtol=None, angle_tol=None,
+                            overrides=()) -> Tolerances:
+    """The tolerances of `vrsim regress`: the file's, with --atol/--rtol/--angle-tol
+    replacing those values of its default and `overrides` from --tol, [("[SCENE:]PATTERN", [atol] or
+    [atol, angle_tol])], after its entity tolerances."""
+    given = {k: v for k, v in (("atol", atol), ("rtol", rtol), ("angle_tol", angle_tol))
+             if v is not None}
+    tol = load_tolerances(path, given)
+    for pattern, values in overrides:
+        scene_pattern, _, entity_pattern = pattern.rpartition(":")
+        tol.options.append((scene_pattern or "*", entity_pattern or "*", values[0],
+                            values[1] if len(values) > 1 else None))
+    return tol
+
+
+def load_tolerances(path: Path | None, given: dict | None = None) -> Tolerances:
+    """The tolerances of `path` (YAML; absent: compare's defaults). `given` ({"atol": ...}
+    from --atol/--rtol/--angle-tol) replaces those values of the file's default, before
+    the scenes inherit from it. Raises InputError at FILE:LINE:COL for a bad file."""
+    import dataclasses
+
     from vrsim_cli.tools.compare import Tolerance
 
-    tol = Tolerances(default if default is not None else Tolerance())
+    given = given or {}
+    tol = Tolerances(dataclasses.replace(Tolerance(), **given))
     if path is None or not path.exists():
-        tol.entities.extend(entity_overrides)
         return tol
     tol.source = str(path)
     try:
@@ -108,10 +133,9 @@ def load_tolerances(path: Path | None, default=None, entity_overrides=()) -> Tol
     node = _compose(text, str(path))
     problems: list[Problem] = []
     if node is not None:
-        _read_tolerances(node, str(path), tol, default is not None, problems)
+        _read_tolerances(node, str(path), tol, given, problems)
     if problems:
         raise InputError(problems)
-    tol.entities.extend(entity_overrides)
     return tol
 
 
@@ -169,14 +193,15 @@ def _tolerance(node, file: str, path: tuple, base, problems: list, extra=()):
     return dataclasses.replace(base, **values)
 
 
-def _read_tolerances(node, file: str, tol: Tolerances, keep_default: bool,
+def _read_tolerances(node, file: str, tol: Tolerances, given: dict,
                      problems: list) -> None:
+    import dataclasses
+
     for key_node, value_node in _mapping(node, file, (), problems):
         key = key_node.value
-        if key == "default":
+        if key == "default":  # --atol/--rtol/--angle-tol win over the file
             parsed = _tolerance(value_node, file, ("default",), tol.default, problems)
-            if not keep_default:  # --atol/--rtol/--angle-tol win over the file
-                tol.default = parsed
+            tol.default = dataclasses.replace(parsed, **given)
         elif key != "scenes":
             problems.append(_at(file, key_node, (key,), f"unknown key '{key}'",
                                 did_you_mean(key, ["default", "scenes"]) or
