@@ -8,9 +8,11 @@ of linear scaling on an idle machine).
 
 Overhead: 100 variants of scenarios/projectile.yaml (a point mass, 1.5 s; dt x integrator
 x launch speed) against a computed reference, through the same functions the command
-uses (plan_sweep, run_sweep, write_report). Overhead per run = (planning + running) /
-runs - the mean simulation time of a run (the loop's own wall time, `wall_s` in the
-table). Planning (every variant validated and compiled), shipping the job, unpickling the
+uses (plan_sweep, run_sweep, write_report). Overhead per run = (planning + running) x
+jobs / runs - the mean simulation time of a run (the loop's own wall time, `wall_s` in
+the table). Also in CPU time, which a busy machine disturbs much less: the CPU time of
+this process (planning, the parent's share) plus the workers' CPU time in each job
+outside its loop, per run (the loop's CPU time, `cpu_s`, includes the recording). Planning (every variant validated and compiled), shipping the job, unpickling the
 model, recording samples, the error measurement and the table rows all count as overhead;
 the report (sweep.md and the plot, once per sweep) is timed apart.
 
@@ -80,15 +82,17 @@ def overhead(executor_name: str, jobs: int) -> dict:
             "bodies.ball.velocity=[7.07, 7.07, 0],[5, 9, 0],[9, 5, 0],[3, 3, 0],[6, 6, 1]"]
     reference = "integrator=rk4 dt=0.01 bodies.ball.velocity=[7.07,7.07,0]"
     executor = Serial() if jobs == 1 else LocalPool(jobs)
+    outcomes = []
     with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         plan = _plan(scene, sets, reference)
         t1 = time.perf_counter()
         try:
-            result = sweep.run_sweep(plan, Path(tmp) / "out", executor)
+            result = sweep.run_sweep(plan, Path(tmp) / "out", executor,
+                                     on_run=lambda run, outcome: outcomes.append(outcome))
         finally:
             executor.close()
-        t2 = time.perf_counter()
+        t2, c2 = time.perf_counter(), time.process_time()
         sweep.write_report(plan, Path(tmp) / "out", executor_name)
         t3 = time.perf_counter()
         _, rows = sweep.read_rows(Path(tmp) / "out" / sweep.RUNS_CSV)
@@ -97,10 +101,20 @@ def overhead(executor_name: str, jobs: int) -> dict:
     sim = [float(r["wall_s"]) for r in rows]  # the reference's simulation counts too
     n = len(runs)
     core_s = (t2 - t0) * jobs  # core time the sweep held
+    # CPU time, which other work on the machine barely changes: this process's, plus (on
+    # a pool) what the workers spent in each job beyond its loop
+    sim_cpu = sum(o.cpu_s for o in outcomes)
+    parent_cpu = c2 - c0
+    if jobs == 1:
+        cpu_overhead = parent_cpu - sim_cpu
+    else:
+        cpu_overhead = parent_cpu + sum(o.task_cpu_s - o.cpu_s for o in outcomes)
     return {"executor": executor_name, "jobs": jobs, "runs": n, "plan_s": t1 - t0,
             "run_phase_s": t2 - t1, "report_s": t3 - t2,
             "simulation_s_total": sum(sim), "simulation_ms_mean": 1e3 * statistics.mean(sim),
             "overhead_ms_per_run": 1e3 * (core_s - sum(sim)) / n,
+            "cpu_overhead_ms_per_run": 1e3 * cpu_overhead / n,
+            "simulation_cpu_ms_mean": 1e3 * sim_cpu / len(outcomes),
             "overhead_ms_per_run_with_report": 1e3 * ((t3 - t0) * jobs - sum(sim)) / n,
             "done": result.done}
 
@@ -153,7 +167,8 @@ def main(argv=None) -> int:
               f"{o['plan_s']:.3f} s, runs {o['run_phase_s']:.3f} s, simulation mean "
               f"{o['simulation_ms_mean']:.2f} ms -> {o['overhead_ms_per_run']:.2f} ms per run "
               f"beyond the simulation ({o['overhead_ms_per_run_with_report']:.2f} ms with the "
-              f"report, {o['report_s']:.3f} s)")
+              f"report, {o['report_s']:.3f} s); in CPU time {o['cpu_overhead_ms_per_run']:.2f} "
+              f"ms per run beyond {o['simulation_cpu_ms_mean']:.2f} ms of loop CPU time")
     if "scaling" in out:
         s = out["scaling"]
         print(f"scaling: {s['runs']} bounce runs, --jobs 1 {s['t1_s']:.2f} s, --jobs "

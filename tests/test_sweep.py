@@ -79,11 +79,14 @@ def rows_of(path):
         return list(csv.DictReader(f))
 
 
+TIMES = ("wall_s", "cpu_s", "task_s")
+
+
 def results(folder):
     """run id -> its row without the times (the only columns allowed to differ)."""
     out = {}
     for row in rows_of(folder / sweep.RUNS_CSV):
-        out[row["run"]] = {k: v for k, v in row.items() if k not in ("wall_s", "task_s")}
+        out[row["run"]] = {k: v for k, v in row.items() if k not in TIMES}
     return out
 
 

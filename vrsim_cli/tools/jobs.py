@@ -71,6 +71,9 @@ class Outcome:
     integrator: str = ""
     wall_s: float = math.nan  # the simulation loop, recording excluded
     task_s: float = math.nan  # the whole job in the worker: unpickle, run, compare
+    cpu_s: float = math.nan  # CPU time of this process in the loop, recording included:
+    # unlike wall time, barely changed by other work on a shared machine
+    task_cpu_s: float = math.nan  # CPU time of the whole job
     state_sha256: str = ""
     entities: list = field(default_factory=list)  # [{entity, pos_err_m, ...}]
     report: dict | None = None  # "golden": compare.Report.as_dict()
@@ -210,13 +213,15 @@ def execute(job: Job, shared=None, should_stop=None) -> Outcome:
     """Run `job`; never raises (but KeyboardInterrupt). `shared`: the reference
     Trajectory ("errors"), the golden Trajectory ("golden"), or None. `should_stop`: polled
     once per frame (in-process runs); a run stopped by it returns status "interrupted"."""
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     if job.version != __version__:
         return Outcome(job.key, "error", f"this worker has vrsim {__version__}, the sweep "
                                          f"was planned with {job.version}: install the same "
                                          f"version on every node")
     try:
-        return _execute(job, shared, should_stop, start)
+        out = _execute(job, shared, should_stop, start)
+        out.task_cpu_s = time.process_time() - cpu_start
+        return out
     except KeyboardInterrupt:
         raise
     except Exception as exc:  # a bug, or a missing library: report it with the run
@@ -234,6 +239,7 @@ def _execute(job: Job, shared, should_stop, start: float) -> Outcome:
     model = _model_of(job)
     out = Outcome(job.key, "ok", dt_s=model.dt, integrator=model.integrator)
     recorder = Recorder(model)
+    cpu = time.process_time()
     try:
         result = run(model, make_state(model), recorder, should_stop=should_stop)
     except SimulationError as exc:
@@ -243,6 +249,7 @@ def _execute(job: Job, shared, should_stop, start: float) -> Outcome:
     if result.interrupted:
         out.status = "interrupted"
         return out
+    out.cpu_s = time.process_time() - cpu
     out.steps = int(result.state.step)
     out.wall_s = result.wall_s - result.profile.get("output", 0.0)
     out.state_sha256 = state_hash(result.state)

@@ -48,7 +48,8 @@ MAX_VARIANTS = 100_000  # a product larger than this is a typo, not a plan
 MAX_PROBLEMS = 20  # distinct problems reported over all variants
 
 # The figures of a run, after the parameter columns (units in the names).
-RESULT_COLUMNS = ("reference", "dt_used_s", "integrator_used", "status", "steps", "wall_s", "task_s",
+RESULT_COLUMNS = ("reference", "dt_used_s", "integrator_used", "status", "steps", "wall_s",
+                  "cpu_s", "task_s",
                   "pos_err_m", "angle_err_rad", "vel_err_m_s", "angvel_err_rad_s",
                   "worst_entity", "state_sha256", "message")
 ENTITY_COLUMNS = ("run", "entity", "pos_err_m", "angle_err_rad", "vel_err_m_s",
@@ -754,7 +755,8 @@ def _row(plan: Plan, run: Run, outcome, entities: list | None = None,
         values.update({"dt_used_s": _number(outcome.dt_s),
                        "integrator_used": outcome.integrator,
                        "status": outcome.status, "steps": str(outcome.steps),
-                       "wall_s": _number(outcome.wall_s), "task_s": _number(outcome.task_s),
+                       "wall_s": _number(outcome.wall_s), "cpu_s": _number(outcome.cpu_s),
+                       "task_s": _number(outcome.task_s),
                        "state_sha256": outcome.state_sha256, "message": outcome.message})
     if status is not None:
         values["status"], values["message"] = status, message
