@@ -538,3 +538,26 @@ def test_a_worker_with_another_vrsim_version_refuses_the_job(write_scene):
     outcome = jobs.execute(dataclasses.replace(job, version="0.0.0-elsewhere"))
     assert outcome.status == "error" and "install the same version on every node" in \
         outcome.message
+
+
+def test_a_shipped_model_accepts_and_refuses_writes_like_the_original():
+    """Pickling drops numpy's read-only flag; the worker's copy gets back exactly the
+    parent's flags, array by array (nested models included), for every scenario."""
+    from conftest import SCENARIOS
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.scene.spec import load_scene
+    from vrsim_cli.tools.jobs import model_arrays, pack_model, unpack_model
+
+    for path in sorted(SCENARIOS.glob("*.yaml")):
+        model = compile_model(load_scene(path))
+        original = model_arrays(model)
+        copy = model_arrays(unpack_model(pack_model(model)))
+        assert [a.flags.writeable for a in copy] == [a.flags.writeable for a in original]
+        for a, b in zip(copy, original):  # bit for bit (NaN included)
+            assert a.dtype == b.dtype and a.shape == b.shape
+            assert a.tolist() == b.tolist() if a.dtype == object else \
+                a.tobytes() == b.tobytes()
+        assert len(original) > 5 and not all(a.flags.writeable for a in original)
+        frozen = next(a for a in copy if not a.flags.writeable and a.size)
+        with pytest.raises(ValueError):
+            frozen.flat[0] = 0

@@ -152,37 +152,50 @@ def thinned_indices(times: list[float], keep: int) -> list[int]:
 # ----------------------------------------------------------------------------- models
 
 
-def freeze(value, _seen=None):
-    """Make every numpy array reachable through dataclass fields, tuples, lists and dict
-    values read-only again (pickling drops the flag): a model from a worker's copy must
-    refuse writes exactly as the parent's does."""
+def model_arrays(value) -> list:
+    """Every numpy array reachable from `value` through dataclass fields, tuples, lists
+    and dict values, once each, in a fixed depth-first order (the same before pickling
+    and after). Collision's fcl `cache` (filled during runs) is left out."""
     import numpy as np
 
-    seen = _seen if _seen is not None else set()
-    if id(value) in seen:
-        return value
-    seen.add(id(value))
-    if isinstance(value, np.ndarray):
-        value.flags.writeable = False
-    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
-        for f in dataclasses.fields(value):
-            if f.name != "cache":  # collision's fcl cache fills during a run, by design
-                freeze(getattr(value, f.name), seen)
-    elif isinstance(value, (tuple, list)):
-        for item in value:
-            freeze(item, seen)
-    elif isinstance(value, dict):
-        for item in value.values():
-            freeze(item, seen)
-    return value
+    found: list = []
+    seen: set = set()
+    todo = [value]
+    while todo:
+        item = todo.pop()
+        if isinstance(item, (str, int, float, bytes)) or item is None or id(item) in seen:
+            continue
+        seen.add(id(item))
+        if isinstance(item, np.ndarray):
+            found.append(item)
+        elif dataclasses.is_dataclass(item) and not isinstance(item, type):
+            todo.extend(getattr(item, f.name) for f in reversed(dataclasses.fields(item))
+                        if f.name != "cache")
+        elif isinstance(item, (tuple, list)):
+            todo.extend(reversed(item))
+        elif isinstance(item, dict):
+            todo.extend(reversed(list(item.values())))
+    return found
 
 
 def pack_model(model) -> bytes | None:
-    """The model pickled for a worker, or None when something in it does not pickle."""
+    """The model pickled for a worker, with the indices (in `model_arrays` order) of its
+    read-only arrays: pickling drops numpy's flag, and a worker's copy must accept and
+    refuse writes exactly where the parent's does. None when something does not pickle."""
+    read_only = [i for i, a in enumerate(model_arrays(model)) if not a.flags.writeable]
     try:
-        return pickle.dumps(model, protocol=pickle.HIGHEST_PROTOCOL)
+        return pickle.dumps((model, read_only), protocol=pickle.HIGHEST_PROTOCOL)
     except (pickle.PicklingError, TypeError, AttributeError):
         return None
+
+
+def unpack_model(blob: bytes):
+    """The model of `pack_model`, its read-only arrays read-only again."""
+    model, read_only = pickle.loads(blob)
+    arrays = model_arrays(model)
+    for i in read_only:
+        arrays[i].flags.writeable = False
+    return model
 
 
 _models: OrderedDict = OrderedDict()  # job key -> Model compiled in this worker (fallback)
@@ -190,7 +203,7 @@ _models: OrderedDict = OrderedDict()  # job key -> Model compiled in this worker
 
 def _model_of(job: Job):
     if job.model is not None:
-        return freeze(pickle.loads(job.model))
+        return unpack_model(job.model)
     cached = _models.get(job.key)
     if cached is None:
         from vrsim_cli.model.model import compile_model
