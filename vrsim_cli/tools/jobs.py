@@ -1,7 +1,8 @@
 """One run of a compiled scene inside a worker: the unit of work of `vrsim sweep` and
 `vrsim regress`, the same whichever executor runs it (tools/executors.py).
 
-Layer 7. A `Job` carries the model compiled once by the parent, pickled: a worker never
+Layer 7. A `Job` carries the model compiled once by the parent, pickled (with the
+read-only flags of its arrays, which pickling drops: `pack_model`): a worker never
 reads scene or mesh files, never parses YAML and never compiles, so a job behaves the
 same in this process, in a local worker process or on a Ray node that has nothing but
 vrsim installed. (Should a model ever not pickle, the job carries the validated scene
