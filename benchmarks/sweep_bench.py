@@ -12,9 +12,11 @@ uses (plan_sweep, run_sweep, write_report). Overhead per run = (planning + runni
 jobs / runs - the mean simulation time of a run (the loop's own wall time, `wall_s` in
 the table). Also in CPU time, which a busy machine disturbs much less: the CPU time of
 this process (planning, the parent's share) plus the workers' CPU time in each job
-outside its loop, per run (the loop's CPU time, `cpu_s`, includes the recording). Planning (every variant validated and compiled), shipping the job, unpickling the
-model, recording samples, the error measurement and the table rows all count as overhead;
-the report (sweep.md and the plot, once per sweep) is timed apart.
+outside its loop, per run (the loop's CPU time, `cpu_s`, includes the recording).
+Planning (every variant validated and compiled), shipping the job, unpickling the model,
+the error measurement and the table rows count as overhead (recording the samples too,
+in the wall-time figure); the report (sweep.md and the plot, once per sweep) is timed
+apart.
 
 Scaling: the same 2 x jobs runs of a heavier scene (scenarios/bounce.yaml, ~1.5 s each)
 with --jobs 1 and --jobs N; efficiency = T(1) / (N T(N)). Because this machine may be
