@@ -546,6 +546,106 @@ def bench(quick, peers, names, repeats, folder):
                   " (no plots: pip install 'vrsim-cli[bench]' for matplotlib)"))
 
 
+# ----------------------------------------------------------------------------- sweep
+
+
+def _executor(jobs, ray_address):
+    """The executor of --jobs / --ray (tools/executors.py)."""
+    from vrsim_cli.tools.executors import make_executor
+
+    return make_executor(jobs, ray_address)
+
+
+def _ray_address(ctx, param, value):
+    """--ray [ADDRESS] takes the next word when it is not an option: refuse a scene file
+    there (`vrsim sweep --ray scene.yaml`) with the fix, not a missing-argument error."""
+    if value and Path(value).suffix in (".yaml", ".yml") and Path(value).exists():
+        raise click.BadParameter(f"'{value}' was taken as the cluster address: put --ray "
+                                 f"after the scene files, or write --ray=ADDRESS")
+    return value
+
+
+def _executor_options(command):
+    """--jobs N and --ray [ADDRESS], shared by sweep and regress."""
+    command = click.option(
+        "--ray", "ray_address", is_flag=False, flag_value="", default=None,
+        metavar="[ADDRESS]", callback=_ray_address, help="Run on Ray: a local instance, or "
+        "the cluster at ADDRESS (pip install 'vrsim-cli[ray]').")(command)
+    return click.option("--jobs", type=click.IntRange(min=1), help="Worker processes "
+                        "(default: the machine's cores; 1: in this process).")(command)
+
+
+@cli.command()
+@click.argument("scene_files", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--set", "settings", multiple=True, metavar="KEY=V1,V2,...", help="Values of "
+              "a scene key to sweep (repeatable: the runs are the cartesian product). KEY "
+              "is a path: dt, integrator, tolerance, bodies.ball.material.restitution "
+              "(list items by name or [index]). Values are YAML; lin:A:B:N and log:A:B:N "
+              "give N spaced values.")
+@click.option("--reference", "reference", multiple=True, metavar="'KEY=V ...'|FILE",
+              help="Measure each run's error against the run with these values on top "
+                   "(e.g. 'integrator=dopri5 tolerance=1e-12'), or against a trajectory "
+                   "file.")
+@click.option("-o", "--output", "folder", type=click.Path(file_okay=False), default="sweep",
+              show_default=True, help="Folder for runs.csv, entities.csv, sweep.md, plots.")
+@_executor_options
+@click.option("--resume", is_flag=True, help="Continue the sweep in the output folder, "
+              "skipping the runs its table already holds.")
+@click.option("-q", "--quiet", is_flag=True, help="Print only failures and the summary.")
+@_reports_errors
+def sweep(scene_files, settings, reference, folder, jobs, ray_address, resume, quiet):
+    """Run variants of scenes and measure speed against error (docs/sweep.md).
+
+    Exit 0 when every run finished, 1 when a run failed (the others still run), 2 on
+    bad input (found before anything runs).
+    """
+    from vrsim_cli.tools import sweep as sweep_module
+    from vrsim_cli.tools.executors import describe
+
+    parsed = [sweep_module.parse_setting(text) for text in settings]
+    pairs, ref_file = sweep_module.parse_reference(reference)
+    plan = sweep_module.plan_sweep(list(scene_files), parsed, pairs, ref_file)
+    for note in plan.notes:
+        click.echo(f"note: {note}", err=True)
+    executor = _executor(jobs, ray_address)
+    total = len(plan.runs) + len(plan.references)
+    count = [0]
+
+    def on_run(run, outcome):
+        count[0] += 1
+        line = sweep_module.progress_line(run, outcome, count[0], total)
+        if outcome is None or outcome.status != "ok":
+            click.echo(f"error: {line}", err=True)
+        elif not quiet:
+            click.echo(line)
+
+    out = Path(folder)
+    with _Signals() as signals:
+        try:
+            result = sweep_module.run_sweep(
+                plan, out, executor, resume=resume, on_run=on_run,
+                should_stop=lambda: signals.received is not None)
+        finally:
+            executor.close()
+        written = sweep_module.write_report(plan, out, describe(executor))
+    skipped = f", {result.skipped} already in the table" if result.skipped else ""
+    runs = f"{result.done} run" + ("" if result.done == 1 else "s")
+    click.echo(f"sweep: {runs} in {result.wall_s:.3g} s {describe(executor)}"
+               f"{skipped}; {len(result.failed)} failed")
+    for line in sweep_module.fronts_summary(plan, out):
+        click.echo(line)
+    plots = len(written) - 1
+    click.echo(f"wrote {out / sweep_module.RUNS_CSV}, {out / sweep_module.ENTITIES_CSV}, "
+               f"{written[0]}" + (f" and {plots} plot(s)" if plots else
+                                  " (no plot: no errors, or pip install matplotlib)"))
+    if signals.received is not None:
+        name = signal.Signals(signals.received).name
+        click.echo(f"interrupted by {name}: the finished runs are in the table; rerun with "
+                   f"--resume to do the rest", err=True)
+        sys.exit(128 + signals.received)
+    sys.exit(1 if result.failed else 0)
+
+
 # ----------------------------------------------------------------------------- compare
 
 
@@ -611,6 +711,101 @@ def compare(a, b, atol, rtol, angle_tol, overrides, allow_missing_entities, show
         for line in format_report(report, show_all=show_all):
             click.echo(line)
     sys.exit(0 if report.ok else 1)
+
+
+# ----------------------------------------------------------------------------- regress
+
+
+@cli.command()
+@click.argument("folder", type=click.Path(file_okay=False))
+@click.argument("names", nargs=-1)
+@click.option("--golden", "golden", type=click.Path(file_okay=False), required=True,
+              help="Folder of the goldens NAME.csv.gz (and hashes.json, tolerances.yaml).")
+@click.option("--update", is_flag=True, help="Rewrite the goldens and this platform's "
+              "state-hash pins from this run (review and commit them).")
+@click.option("--junit", "junit", type=click.Path(dir_okay=False), help="Also write the "
+              "result as JUnit XML (one testcase per scene).")
+@_executor_options
+@click.option("--atol", type=_TOL, help="Default absolute tolerance (m, m/s, rad/s), "
+              "replacing tolerances.yaml's default atol.")
+@click.option("--rtol", type=_TOL, help="Default relative tolerance (likewise).")
+@click.option("--angle-tol", type=_TOL, help="Default orientation tolerance in rad "
+              "(likewise).")
+@click.option("--tol", "overrides", type=_ToleranceOverride(), multiple=True,
+              help="[SCENE:]PATTERN=ATOL[,ANGLE_TOL]: per-entity tolerance (shell-style "
+                   "patterns), for the scenes matching SCENE (default all); the last match "
+                   "wins, after tolerances.yaml's.")
+@click.option("--tolerances", "tolerances_file", type=click.Path(dir_okay=False),
+              help="Tolerances file (default: GOLDEN/tolerances.yaml when present).")
+@click.option("--no-pins", is_flag=True, help="Do not check the state-hash pins "
+              "(hashes.json), only the trajectories.")
+@click.option("--samples", type=click.IntRange(min=2), default=21, show_default=True,
+              help="--update: sample times kept per golden.")
+@click.option("-q", "--quiet", is_flag=True, help="Print only failures and the summary.")
+@_reports_errors
+def regress(folder, names, golden, update, junit, jobs, ray_address, atol, rtol, angle_tol,
+            overrides, tolerances_file, no_pins, samples, quiet):
+    """Run every scene in FOLDER (or the NAMES given) and compare it with its golden.
+
+    Exit 0 when every scene matches, 1 when one does not (or its run fails), 2 on bad
+    input. Tolerances and goldens: docs/regression.md.
+    """
+    from vrsim_cli.tools import regress as regress_module
+    from vrsim_cli.tools.executors import describe
+
+    folder_path, golden_path = Path(folder), Path(golden)
+    if junit and not Path(junit).resolve().parent.is_dir():
+        raise click.BadParameter(f"folder '{Path(junit).parent}' does not exist",
+                                 param_hint="--junit")
+    file = Path(tolerances_file) if tolerances_file else golden_path / regress_module.TOLERANCES
+    if tolerances_file and not file.exists():
+        raise click.BadParameter(f"no such file '{tolerances_file}'", param_hint="--tolerances")
+    tolerances = regress_module.tolerances_from_options(file, atol, rtol, angle_tol, overrides)
+    plan = regress_module.plan_regress(folder_path, golden_path, names, update=update,
+                                       tolerances=tolerances, check_pins=not no_pins,
+                                       samples=samples)
+    for note in plan.notes:
+        click.echo(f"note: {note}", err=True)
+    command = f"vrsim regress {folder} --golden {golden} --update"
+
+    def on_case(case):
+        if update:
+            return
+        if case.status == "passed":
+            if not quiet:
+                click.echo(f"{case.name}: ok")
+            return
+        click.echo(f"{case.name}: {case.status.upper()}: " + "; ".join(case.reasons))
+        for line in case.lines:
+            click.echo(f"  {line}")
+
+    executor = _executor(jobs, ray_address)
+    with _Signals() as signals:
+        try:
+            result = regress_module.run_regress(
+                plan, executor, on_case=on_case, update_command=command,
+                should_stop=lambda: signals.received is not None)
+        finally:
+            executor.close()
+        if signals.received is not None:
+            name = signal.Signals(signals.received).name
+            click.echo(f"interrupted by {name}: nothing written", err=True)
+            sys.exit(128 + signals.received)
+        if update:
+            not_written = regress_module.update_goldens(result, say=click.echo)
+        if junit:
+            regress_module.write_junit(result, Path(junit))
+    counts = result.counts()
+    passed = counts["tests"] - counts["failures"] - counts["errors"]
+    if update:
+        click.echo(f"regress --update: {len(result.cases) - len(not_written)} goldens "
+                   f"written or unchanged in {golden}, {len(not_written)} not written "
+                   f"({result.wall_s:.3g} s {describe(executor)})")
+        sys.exit(1 if not_written else 0)
+    click.echo(f"regress: {counts['tests']} scenes, {passed} passed, {counts['failures']} "
+               f"failed, {counts['errors']} errors ({result.wall_s:.3g} s "
+               f"{describe(executor)})" + (f"; JUnit XML in {junit}" if junit else ""))
+    sys.exit(0 if result.ok else 1)
 
 
 def main() -> None:
