@@ -19,6 +19,7 @@ PACKAGE = "vrsim_cli"
 LAYERS = {
     "vrsim_cli": 0,  # the package itself: __version__ only
     "vrsim_cli.errors": 0,
+    "vrsim_cli.text": 0,  # plurals and aligned tables for every command's output
     "vrsim_cli.maths": 0,
     "vrsim_cli.scene": 1,
     "vrsim_cli.model": 2,

@@ -213,9 +213,17 @@ def test_info(invoke, write_scene, tmp_path):
     result = invoke("info", out)
     assert result.exit_code == 0
     assert result.stdout.splitlines()[:3] == [
-        f"{out}: mcap, 1 entities, 51 samples", "time: 0 .. 1 s (duration 1 s)",
+        f"{out}: mcap, 1 entity, 51 samples", "time: 0 .. 1 s (duration 1 s)",
         "entities: ball"]
-    assert "/tf              foxglove.FrameTransforms   51 messages" in result.stdout
+    # a table whose columns fit the longest topic and schema, numbers right-aligned
+    table = result.stdout.split("channels:\n")[1].splitlines()[:4]
+    assert table[0].split() == ["topic", "schema", "messages"]
+    assert sorted(line.split() for line in table[1:]) == [
+        ["/scene", "foxglove.SceneUpdate", "1"], ["/tf", "foxglove.FrameTransforms", "51"],
+        ["/vrsim/state", "vrsim.State", "51"]]
+    assert len({line.index(" foxglove.") if " foxglove." in line else line.index(" vrsim.")
+                for line in table[1:]}) == 1
+    assert len({len(line) for line in table}) == 1
     data = json.loads(invoke("info", out, "--json").stdout)
     assert data["samples"] == 51 and data["vrsim"]["integrator"] == "symplectic-euler"
 

@@ -368,39 +368,14 @@ def schema():
 @_reports_errors
 def info(trajectory_file, as_json):
     """Summarise a trajectory file: entities, duration, samples, channels."""
-    from vrsim_cli.tools.trajectory import read_trajectory
+    from vrsim_cli.tools.trajectory import format_summary, read_trajectory, summary
 
-    traj = read_trajectory(trajectory_file)
-    times = traj.times
-    summary = {
-        "file": trajectory_file, "format": traj.format,
-        "entities": list(traj.tracks),
-        "samples": int(len(times)),
-        "start_s": float(times[0]) if len(times) else None,
-        "end_s": float(times[-1]) if len(times) else None,
-        "duration_s": float(times[-1] - times[0]) if len(times) else 0.0,
-        "channels": [{"topic": t, "schema": s, "messages": n} for t, s, n in traj.channels],
-        "vrsim": {k: v for k, v in traj.metadata.get("vrsim", {}).items() if k != "scene"},
-    }
+    info_ = summary(read_trajectory(trajectory_file), trajectory_file)
     if as_json:
-        click.echo(json.dumps(summary, indent=2))
+        click.echo(json.dumps(info_, indent=2))
         return
-    click.echo(f"{trajectory_file}: {traj.format}, {len(traj.tracks)} entities, "
-               f"{summary['samples']} samples")
-    if len(times):
-        click.echo(f"time: {summary['start_s']:.6g} .. {summary['end_s']:.6g} s "
-                   f"(duration {summary['duration_s']:.6g} s)")
-    names = list(traj.tracks)
-    shown = ", ".join(names[:10]) + (f", ... ({len(names) - 10} more)" if len(names) > 10 else "")
-    click.echo(f"entities: {shown}")
-    if traj.channels:
-        click.echo("channels:")
-        for ch in summary["channels"]:
-            click.echo(f"  {ch['topic']:<16} {ch['schema']:<26} {ch['messages']} messages")
-    made = summary["vrsim"]
-    if made:
-        click.echo(f"made by vrsim {made.get('version', '?')} from {made.get('scene_file', '?')}"
-                   f" (dt {made.get('dt', '?')} s, {made.get('integrator', '?')})")
+    for line in format_summary(info_):
+        click.echo(line)
 
 
 # ----------------------------------------------------------------------- collision-proxies

@@ -150,6 +150,11 @@ def compare(a: Trajectory, b: Trajectory, plan: TolerancePlan = TolerancePlan(),
             allow_missing_entities: bool = False) -> Report:
     """Compare trajectory `a` with the reference `b`. Raises InputError when a track's
     times are not increasing (two samples of one entity at the same time)."""
+    for traj in (a, b):
+        if not traj.tracks and traj.format == "mcap":
+            raise InputError([Problem(traj.source, 0, 0, (), "holds no trajectory",
+                                      "vrsim reads /vrsim/state or, from files of other "
+                                      "tools, foxglove.FrameTransforms channels")])
     report = Report(a, b, allow_missing_entities=allow_missing_entities)
     report.only_in_a = [n for n in a.tracks if n not in b.tracks]
     report.only_in_b = [n for n in b.tracks if n not in a.tracks]

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from vrsim_cli.errors import InputError, Problem
+from vrsim_cli.text import plural, table
 from vrsim_cli.writers.entities import CSV_COLUMNS
 
 STATE_COLUMNS = CSV_COLUMNS[2:]  # px .. wz: the 13 numbers of an entity
@@ -54,6 +55,57 @@ class Trajectory:
         if not self.tracks:
             return np.zeros(0)
         return np.unique(np.concatenate([tr.t for tr in self.tracks.values()]))
+
+
+def summary(traj: Trajectory, file: str) -> dict:
+    """What `vrsim info` reports, as a JSON-ready dict."""
+    times = traj.times
+    return {
+        "file": file, "format": traj.format,
+        "entities": list(traj.tracks),
+        "samples": int(len(times)),
+        "start_s": float(times[0]) if len(times) else None,
+        "end_s": float(times[-1]) if len(times) else None,
+        "duration_s": float(times[-1] - times[0]) if len(times) else 0.0,
+        "channels": [{"topic": t, "schema": s, "messages": n} for t, s, n in traj.channels],
+        "tracks_from": traj.source_channels or (["/vrsim/state"] if traj.format == "mcap"
+                                                and traj.tracks else []),
+        "parent_frames": dict(traj.frames),
+        "vrsim": {k: v for k, v in traj.metadata.get("vrsim", {}).items() if k != "scene"},
+    }
+
+
+def format_summary(info: dict) -> list[str]:
+    """The lines of `vrsim info`."""
+    names = info["entities"]
+    lines = [f"{info['file']}: {info['format']}, {plural(len(names), 'entity')}, "
+             f"{plural(info['samples'], 'sample')}"]
+    if info["samples"]:
+        lines.append(f"time: {info['start_s']:.6g} .. {info['end_s']:.6g} s "
+                     f"(duration {info['duration_s']:.6g} s)")
+    shown = ", ".join(names[:10]) + (f", ... ({len(names) - 10} more)" if len(names) > 10
+                                     else "")
+    lines.append(f"entities: {shown}")
+    if info["format"] == "mcap" and info["tracks_from"] != ["/vrsim/state"]:
+        if info["tracks_from"]:
+            parents = sorted(set(info["parent_frames"].values()))
+            lines.append(f"tracks from {', '.join(info['tracks_from'])} (FrameTransforms): "
+                         f"position and orientation of each frame in its parent "
+                         f"({', '.join(parents)}); no velocities")
+        else:
+            lines.append("no trajectories: the file has no /vrsim/state and no "
+                         "foxglove.FrameTransforms channel")
+    if info["channels"]:
+        lines.append("channels:")
+        lines += table(["topic", "schema", "messages"],
+                       [[c["topic"], c["schema"], c["messages"]] for c in info["channels"]],
+                       right={2}, indent="  ")
+    made = info["vrsim"]
+    if made:
+        lines.append(f"made by vrsim {made.get('version', '?')} from "
+                     f"{made.get('scene_file', '?')} (dt {made.get('dt', '?')} s, "
+                     f"{made.get('integrator', '?')})")
+    return lines
 
 
 def read_trajectory(path: str | Path) -> Trajectory:
