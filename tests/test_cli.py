@@ -186,7 +186,7 @@ def test_validate(invoke, write_scene, tmp_path):
     bad = write_scene("vrsim: 1\nduration: x\n", "bad.yaml")
     result = invoke("validate", good)
     assert result.exit_code == 0
-    assert result.stdout == f"{good}: ok (1 bodies, 1 s in 100 steps of 0.01 s, symplectic-euler)\n"
+    assert result.stdout == f"{good}: ok (1 body, 1 s in 100 steps of 0.01 s, symplectic-euler)\n"
     result = invoke("validate", good, bad)
     assert result.exit_code == 2
     assert f"{good}: ok" in result.stdout

@@ -120,8 +120,10 @@ class McapWriter:
                                                    compression=MCAPCompression.Lz4,
                                                    compression_threads=0))
                 self.outlets.append(Outlet(context))
+            self.live_outlet = None
             if live is not None:
-                self.outlets.append(Outlet(live.context))
+                self.live_outlet = Outlet(live.context)
+                self.outlets.append(self.live_outlet)
             self._channels(model)
             if self.mcap is not None:
                 self.mcap.write_metadata("vrsim", {
