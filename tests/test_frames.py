@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO
-from vrsim_cli.writers.png import encode_png
+from vrsim_cli.writers.frames import encode_png
 
 
 def read_png(data: bytes) -> np.ndarray:

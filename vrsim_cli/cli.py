@@ -321,7 +321,7 @@ def _subsampled(frames) -> str:
     """A note when the video keeps fewer images than the frames folder (GIF delays)."""
     video = getattr(frames, "video", None)
     keep = getattr(video, "keep_every", 1)
-    return f" (the GIF keeps every {keep}th image: {video.note})" if keep > 1 else ""
+    return f" (the GIF keeps one image in {keep}: {video.note})" if keep > 1 else ""
 
 
 # ----------------------------------------------------------------------------- validate
