@@ -38,10 +38,24 @@ def test_run_without_output_writes_nothing_and_says_so(invoke, write_scene, tmp_
     assert [p.name for p in tmp_path.iterdir()] == ["scene.yaml"]
 
 
-def test_scene_output_file_is_relative_to_the_scene(invoke, write_scene, tmp_path):
-    scene = write_scene(BALL + "output: {file: traj.mcap, rate: 10}\n")
-    assert invoke("run", scene).exit_code == 0
-    assert len(read_trajectory(tmp_path / "traj.mcap").times) == 11
+def test_scene_output_file_is_relative_to_the_current_folder(invoke, write_scene, tmp_path,
+                                                           monkeypatch):
+    """Not beside the scene: `vrsim run scenarios/x.yaml` must not write into the
+    checkout's scenarios folder."""
+    (tmp_path / "scenes").mkdir()
+    scene = write_scene(BALL + "output: {file: traj.mcap, rate: 10}\n", "scenes/s.yaml")
+    (tmp_path / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "work")
+    result = invoke("run", scene)
+    assert result.exit_code == 0, result.output
+    assert f"-> {tmp_path / 'work' / 'traj.mcap'}" in result.stdout
+    assert len(read_trajectory(tmp_path / "work" / "traj.mcap").times) == 11
+    assert sorted(p.name for p in (tmp_path / "scenes").iterdir()) == ["s.yaml"]
+    escape = write_scene(BALL + "output: {file: ../traj.csv}\n", "scenes/e.yaml")
+    result = invoke("run", escape)
+    assert result.exit_code == 2
+    assert "path '../traj.csv' leaves the current folder" in result.stderr
+    assert "-o FILE" in result.stderr
 
 
 def test_overrides(invoke, write_scene, tmp_path):

@@ -315,7 +315,7 @@ def _output_spec(scene: Scene, out: dict, override, every_steps: int,
         return OutputSpec(Path(path), fmt, every_steps, up)
     if "file" not in out:
         return OutputSpec(None, None, every_steps, up)
-    path = scene.resolve_path(("output", "file"), problems)
+    path = scene.resolve_path(("output", "file"), problems, output=True)
     if path is None:
         return OutputSpec(None, None, every_steps, up)
     fmt = output_format_for(path, out.get("format"))
@@ -335,7 +335,7 @@ def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[P
         return [scene.problem(at, "the output would overwrite the scene file itself")]
     if not path.parent.is_dir():
         return [scene.problem(at, f"folder '{path.parent}' does not exist",
-                              "paths are relative to the scene file's folder")]
+                              "output paths are relative to the current folder")]
     if fmt in ("csv", "mcap") and path.is_dir():
         return [scene.problem(at, f"'{scene.get(at)}' is a folder; {fmt} output is a file")]
     if fmt == "tum" and path.exists() and not path.is_dir():
