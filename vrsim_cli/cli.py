@@ -611,6 +611,44 @@ def compare(a, b, atol, rtol, angle_tol, overrides, allow_missing_entities, show
     sys.exit(0 if report.ok else 1)
 
 
+# ----------------------------------------------------------------------------- plot
+
+
+@cli.command()
+@click.argument("trajectory_file", type=click.Path())
+@click.option("-o", "--output", type=click.Path(dir_okay=False), help="PNG to write "
+              "(default: FILE's name with .png, in the current folder).")
+@click.option("--entity", "patterns", multiple=True, help="Plot the entities matching this "
+              "shell-style pattern (repeatable; default: all, at most 10).")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False), help="The scene of "
+              "the run, for the masses behind the energy (vrsim's MCAP files carry theirs).")
+@_reports_errors
+def plot(trajectory_file, output, patterns, scene_file):
+    """Plot position, speed and energy over time per entity (PNG; needs matplotlib:
+    pip install 'vrsim-cli[plot]')."""
+    from vrsim_cli.tools.plot import draw, model_of, series
+    from vrsim_cli.tools.trajectory import read_trajectory
+
+    out = Path(output) if output else Path(Path(trajectory_file).name).with_suffix(".png")
+    if out.suffix.lower() != ".png":
+        raise click.UsageError(f"'{out}': vrsim plot writes PNG; use a .png name")
+    if not out.parent.is_dir():
+        raise click.UsageError(f"folder '{out.parent}' does not exist")
+    traj = read_trajectory(trajectory_file)
+    if not traj.tracks:
+        raise InputError(f"{trajectory_file}: holds no trajectory to plot")
+    model = model_of(traj, scene_file)
+    data = series(traj, model, patterns)
+    note = None
+    if model is None:
+        note = "energy needs the masses: give the scene with --scene"
+    elif not any(s["energy"] is not None for s in data["entities"].values()):
+        note = "no body with a finite mass and velocities among these entities"
+    draw(data, f"{Path(trajectory_file).name}", out, note)
+    click.echo(f"wrote {out}: position, speed and energy of "
+               f"{', '.join(data['entities'])}")
+
+
 def main() -> None:
     cli(prog_name="vrsim")
 
