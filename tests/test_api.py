@@ -144,3 +144,12 @@ def test_the_docs_example_runs(monkeypatch, capsys):
     out = capsys.readouterr().out
     assert "projectile 2 0.001 1.5" in out and "falling from t = 0.73 s" in out
     assert "apex at t = 0.72 s, 3.548 m" in out
+
+
+def test_the_readme_python_example_runs(monkeypatch):
+    monkeypatch.chdir(REPO)
+    text = (REPO / "README.md").read_text()
+    (block,) = re.findall(r"```python\n(.*?)```", text, re.S)
+    scope: dict = {}
+    exec(compile(block, "README.md", "exec"), scope)
+    assert scope["traj"].position[:, scope["traj"].index("ball")].shape == (151, 3)
