@@ -95,13 +95,19 @@ def _check_translation(model: Model, state: State) -> None:
 def run(model: Model, state: State, writer=None, *, realtime: bool = False,
         should_stop: Callable[[], bool] | None = None,
         on_frame: Callable[[State], None] | None = None,
-        render: Callable[[State], None] | None = None) -> RunResult:
+        render: Callable[[State], None] | None = None,
+        resume: bool = False) -> RunResult:
     """Run `model` from `state` to the end (or until `should_stop()` is true at a frame).
 
     `writer` receives samples; it is not closed here. On a blow-up the last good state is
     written (if it was not yet) before SimulationError propagates. `render` (stage 3, e.g.
     a `writers.frames.FramesWriter`) is called with the initial state and after every
     frame; it picks the frames it draws, so this module never imports OpenGL.
+
+    `resume`: `state` is where an earlier run of this model stopped (at a frame, through
+    `should_stop`); the set-up of a run's first state (kinematic poses at t, attaching the
+    observer to its body) is skipped, so running in pieces gives the states of one run,
+    bit for bit (the Python API's Simulation.step relies on it).
     """
     clock = time.perf_counter
     profile = {"sensors": 0.0, "navigation": 0.0, "dynamics": 0.0, "checks": 0.0,
@@ -123,6 +129,7 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
     animate = model.animation is not None and model.animation.has_motion
     if animate:
         profile["scenegraph"] = 0.0
+    if animate and not resume:
         t0 = clock()
         state = scenegraph.step(model, state)  # 3. the first sample is exact too
         profile["scenegraph"] += clock() - t0
@@ -155,7 +162,7 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
 
     if render is not None:
         profile["render"] = 0.0
-    if model.observer is not None and model.observer.mode == "attached":
+    if model.observer is not None and model.observer.mode == "attached" and not resume:
         state = result.state = navigation.attach(model, state)  # on its body from t = 0
     frame_start = frame_end = state
     sample(state)
