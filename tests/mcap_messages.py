@@ -20,22 +20,6 @@ from mcap.reader import make_reader
 from vrsim_cli.writers import vrsim_messages
 
 
-def _pool(schema_data: bytes):
-    fds = descriptor_pb2.FileDescriptorSet.FromString(schema_data)
-    pool = descriptor_pool.DescriptorPool()
-    pending = {f.name: f for f in fds.file}
-
-    def add(proto):
-        for dependency in proto.dependency:
-            if dependency in pending:
-                add(pending.pop(dependency))
-        pool.Add(proto)
-
-    while pending:
-        add(pending.popitem()[1])
-    return pool
-
-
 @lru_cache(maxsize=None)
 def reference_schema(name: str) -> bytes:
     """The schema data a channel of type `name` must carry: the SDK's or vrsim's."""
@@ -49,9 +33,11 @@ def reference_schema(name: str) -> bytes:
 
 @lru_cache(maxsize=None)
 def message_type(name: str):
-    """The protobuf class of `name` built from the reference schema."""
-    return message_factory.GetMessageClass(
-        _pool(reference_schema(name)).FindMessageTypeByName(name))
+    """The protobuf class of `name` built from the reference schema (protobuf's own
+    GetMessages orders the files by their dependencies)."""
+    fds = descriptor_pb2.FileDescriptorSet.FromString(reference_schema(name))
+    return message_factory.GetMessages(list(fds.file), pool=descriptor_pool.DescriptorPool())[
+        name]
 
 
 def _no_unknown_fields(message, where: str) -> None:

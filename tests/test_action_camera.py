@@ -128,12 +128,12 @@ def test_every_moving_body_stays_in_view_and_large_enough(name, tmp_path):
     model, images = shots(name, tmp_path)
     states = [s for s, _ in images]
     assert len(images) == model.n_frames + 1  # every loop frame and the initial state
-    moving, inside = moving_and_in_scene(model, states)
-    _, inner = sizes(model)
     if model.observer is not None:  # the observer's eye, as the scene asks
         for state, camera in images:
             assert np.allclose(camera.eye, state.observer_pos)
         return
+    moving, inside = moving_and_in_scene(model, states)
+    _, inner = sizes(model)
     if not moving.any():  # nothing moves: one framing of everything, every body in view
         cameras = {c for _, c in images}
         assert len(cameras) == 1

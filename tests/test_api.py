@@ -19,7 +19,7 @@ from vrsim_cli.loop import run
 from vrsim_cli.model.state import make_state, state_hash
 from vrsim_cli.writers import open_writer
 
-CHUNKED = ["projectile", "bounce", "keyframes", "fountain", "walk-steps", "dzhanibekov",
+CHUNKED = ["projectile", "bounce", "keyframes", "car", "fountain", "walk-steps", "dzhanibekov",
            "collision"]
 
 

@@ -7,6 +7,7 @@ import json
 
 import pytest
 
+from test_cli import BALL
 from vrsim_cli.loop import run
 from vrsim_cli.model.model import compile_model
 from vrsim_cli.model.state import make_state, state_hash
@@ -14,14 +15,6 @@ from vrsim_cli.scene.spec import parse_scene
 from vrsim_cli.text import plural, table
 from vrsim_cli.tools.trajectory import read_trajectory
 
-BALL = """
-vrsim: 1
-name: drop
-duration: 1.0
-frame_rate: 50
-dt: 0.01
-bodies: [{name: ball, mass: 1, position: [0, 10, 0]}]
-"""
 
 
 def test_run_json_is_the_only_stdout_and_matches_the_run(invoke, write_scene, tmp_path):

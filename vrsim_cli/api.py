@@ -17,12 +17,12 @@ package imports this module on first use, so `import vrsim_cli` stays cheap)::
 `vrsim_cli.model.state.State`): read-only numpy arrays named `body_<quantity>`, with shape
 and unit in their docstrings and in docs/api.md.
 
-How it uses the loop: only `loop.run(model, state, writer, should_stop=, on_frame=)`, its
-public entry point. A Simulation advances by calling it from the current state with a
-`should_stop` that ends it after the frames asked for; the loop starts at
-`state.step // steps_per_frame` and samples through the writer, so running in pieces
-gives the same states, bit for bit, as one run (tested). Nothing else of the loop's
-insides is used.
+How it uses the loop: only `loop.run(model, state, writer, should_stop=, on_frame=,
+resume=)`, its public entry point. A Simulation advances by calling it from the current
+state with a `should_stop` that ends it after the frames asked for; the loop starts at
+`state.step // steps_per_frame`, samples through the writer and, with `resume=True`, does
+not set up the first state again, so running in pieces gives the same states, bit for
+bit, as one run (tested). Nothing else of the loop's insides is used.
 """
 
 from __future__ import annotations
@@ -168,6 +168,7 @@ class Simulation:
         self.state = make_state(model) if state is None else state
         self.samples: list[State] = []  # every output sample so far
         self.result: RunResult | None = None
+        self.started = False  # the loop has set up the first state (see loop.run resume)
 
     @property
     def t(self) -> float:
@@ -195,7 +196,9 @@ class Simulation:
         failed = True
         try:
             self.result = run_loop(self.model, self.state, collect,
-                                   should_stop=lambda: done[0] >= frames, on_frame=count)
+                                   should_stop=lambda: done[0] >= frames, on_frame=count,
+                                   resume=self.started)
+            self.started = True
             self.state = self.result.state
             failed = False
         finally:
