@@ -181,7 +181,7 @@ def _output_target(output: str | None, fmt: str | None):
 @click.option("--frames", "frames_dir", type=click.Path(file_okay=False), help="Render PNG "
               "frames into this folder (off-screen, OSMesa). Overrides output.frames.dir.")
 @click.option("--video", type=click.Path(dir_okay=False), help="Also make a video of the "
-              "frames: .mp4 or .gif (needs frames; pip install 'vrsim-cli[video]').")
+              "frames: .mp4 (pip install 'vrsim-cli[video]') or .gif (needs frames).")
 @click.option("--tolerance", type=click.FloatRange(0, 1, min_open=True), help="Error "
               "tolerance per step of --integrator dopri5 (overrides the scene).")
 @click.option("--live", is_flag=True, help="Serve the run to Foxglove over its WebSocket "
@@ -259,6 +259,8 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
             if server is not None:
                 server.close(linger=failure is None)
         if frames is not None:  # still under the handlers: a signal now cannot cut it off
+            if len(frames.states) > 1 and not as_json:  # drawn now: the camera needs the run
+                say(f"rendering {len(frames.states)} frames ...", err=True)
             frames.close()
         if writer is not None:
             try:
