@@ -12,6 +12,13 @@ REPO = Path(__file__).resolve().parent.parent
 SCENARIOS = REPO / "scenarios"
 
 
+@pytest.fixture(autouse=True)
+def _run_in_tmp_path(tmp_path, monkeypatch):
+    """Every test runs in its own temporary folder: a scene's outputs are relative to the
+    current folder, so no test writes into the checkout."""
+    monkeypatch.chdir(tmp_path)
+
+
 @pytest.fixture
 def write_scene(tmp_path):
     """write_scene(text, name='scene.yaml') -> Path of a dedented scene file in tmp_path."""

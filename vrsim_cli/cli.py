@@ -181,12 +181,19 @@ def _output_target(output: str | None, fmt: str | None):
 @click.option("--frames", "frames_dir", type=click.Path(file_okay=False), help="Render PNG "
               "frames into this folder (off-screen, OSMesa). Overrides output.frames.dir.")
 @click.option("--video", type=click.Path(dir_okay=False), help="Also make a video of the "
-              "frames: .mp4 or .gif (needs frames; pip install 'vrsim-cli[video]').")
+              "frames: .mp4 (pip install 'vrsim-cli[video]') or .gif (needs frames).")
 @click.option("--tolerance", type=click.FloatRange(0, 1, min_open=True), help="Error "
               "tolerance per step of --integrator dopri5 (overrides the scene).")
+@click.option("--live", is_flag=True, help="Serve the run to Foxglove over its WebSocket "
+              "protocol at real-time pace (ws://localhost:8765); waits for a client first. "
+              "With -o the file is written too.")
+@click.option("--live-port", type=click.IntRange(0, 65535), default=8765, show_default=True,
+              help="Port of --live on 127.0.0.1 (0: any free port).")
+@click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary of "
+              "the run (and nothing else on stdout).")
 @_reports_errors
 def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet,
-        frames_dir, video, tolerance):
+        frames_dir, video, tolerance, live, live_port, as_json):
     """Run SCENE_FILE and write its trajectory."""
     from vrsim_cli.loop import prepare as prepare_kernels
     from vrsim_cli.loop import run as run_loop
@@ -213,16 +220,33 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
             f"1/{model.frame_rate:g} s; using dt = {model.dt:.6g} s "
             f"({model.steps_per_frame} steps per frame)", err=True)
     prepare_kernels(model, say)  # compiled once after an install; before any output
-    writer = open_writer(model, model.output.path, model.output.format) \
-        if model.output.path is not None else None
-    progress = _Progress(model, enabled=not quiet)
+    server = None
+    if live:
+        from vrsim_cli.writers.live import LiveServer
+        server = LiveServer(model.name)
+    writer = open_writer(model, model.output.path, model.output.format, live=server)
+    if server is not None:
+        try:
+            server.start(live_port)  # after the writer made the channels
+        except BaseException:
+            writer.abort()
+            raise
+        click.echo(f"live: serving {model.name} on {server.url} (Foxglove: Open connection, "
+                   f"Foxglove WebSocket); waiting for a client, Ctrl-C to stop", err=True)
+    progress = _Progress(model, enabled=not quiet and not live and not as_json)
     state = make_state(model)
     failure = None
     with _Signals() as signals:
+        stop = lambda: signals.received is not None  # noqa: E731
+        if server is not None and not server.wait_for_client(stop):
+            for sink in (writer, frames, server):  # no client came: nothing to keep
+                if sink is not None:
+                    sink.abort() if sink is not server else sink.close(linger=False)
+            click.echo("interrupted before a client connected; nothing written", err=True)
+            sys.exit(128 + signals.received)
         try:
-            result = run_loop(model, state, writer, realtime=realtime,
-                              should_stop=lambda: signals.received is not None,
-                              on_frame=progress, render=frames)
+            result = run_loop(model, state, writer, realtime=realtime or live,
+                              should_stop=stop, on_frame=progress, render=frames)
         except SimulationError as exc:
             failure = exc  # finalise the output up to the last good state, then report
         except BaseException:  # an output error, or a bug: keep any previous file
@@ -234,7 +258,11 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
             raise
         finally:
             progress.clear()
+            if server is not None:
+                server.close(linger=failure is None)
         if frames is not None:  # still under the handlers: a signal now cannot cut it off
+            if len(frames.states) > 1 and not as_json:  # drawn now: the camera needs the run
+                say(f"rendering {len(frames.states)} frames ...", err=True)
             frames.close()
         if writer is not None:
             try:
@@ -242,19 +270,31 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
             except VrsimError:
                 writer.abort()
                 raise
+    from vrsim_cli.text import plural
+    from vrsim_cli.tools.run_report import failure_summary, format_run, run_summary
+
     if failure is not None:
         kept = f"; output up to the last good state kept in {model.output.path}" \
-            if writer is not None else ""
+            if model.output.path is not None else ""
         click.echo(f"error: {failure}{kept}", err=True)
+        if as_json:
+            click.echo(json.dumps(failure_summary(model, failure), indent=2))
         sys.exit(failure.exit_code)
-    _summary(model, result, say, profile, realtime)
-    if frames is not None:
-        say(f"frames: {frames.images} images of {model.frames.width}x{model.frames.height} px "
-            f"-> {model.frames.dir}" + (f", video {video}" if video else ""))
+    interrupted = signal.Signals(signals.received).name if signals.received else None
+    report = run_summary(model, result, frames=frames, interrupted_by=interrupted,
+                         live_url=server.url if server is not None else None)
+    if as_json:
+        click.echo(json.dumps(report, indent=2))
+    else:
+        for line in format_run(report, profile, realtime or live):
+            say(line)
+    if frames is not None and not as_json:
+        say(f"frames: {plural(frames.images, 'image')} of {model.frames.width}x"
+            f"{model.frames.height} px -> {model.frames.dir}"
+            + (f", video {video}" if video else "") + _subsampled(frames))
     if signals.received is not None:  # during the loop, or while the output was finalised
-        name = signal.Signals(signals.received).name
-        click.echo(f"interrupted by {name} at t = {result.state.t:.6g} s; output finalised",
-                   err=True)
+        click.echo(f"interrupted by {interrupted} at t = {result.state.t:.6g} s; output "
+                   f"finalised", err=True)
         sys.exit(128 + signals.received)
 
 
@@ -281,25 +321,11 @@ def _open_frames(model, video: str | None):
     return FramesWriter(model, spec, renderer, label=time_label, video=sink)
 
 
-def _summary(model, result, say, profile: bool, realtime: bool) -> None:
-    from vrsim_cli.model.state import state_hash
-
-    state = result.state
-    factor = state.t / result.wall_s if result.wall_s > 0 else float("inf")
-    where = f" -> {model.output.path}" if model.output.path is not None else \
-        " (no output: use -o FILE)"
-    say(f"{model.name}: simulated {state.t:.6g} s in {state.step} steps of {model.dt:.6g} s, "
-        f"wall {result.wall_s:.3f} s, {factor:.1f}x real time{where}")
-    say(f"state sha256:{state_hash(state)}")
-    if realtime:
-        say(f"realtime: missed {result.missed_deadlines} of {result.frames} frame deadlines "
-            f"(worst {1e3 * result.worst_late_s:.2f} ms late)")
-    if profile:
-        total = sum(result.profile.values()) or 1.0
-        say(f"{'stage':<10} {'total s':>9} {'us/step':>9} {'share':>6}")
-        for stage, seconds in result.profile.items():
-            per = 1e6 * seconds / max(state.step, 1)
-            say(f"{stage:<10} {seconds:>9.4f} {per:>9.2f} {100 * seconds / total:>5.1f}%")
+def _subsampled(frames) -> str:
+    """A note when the video keeps fewer images than the frames folder (GIF delays)."""
+    video = getattr(frames, "video", None)
+    keep = getattr(video, "keep_every", 1)
+    return f" (the GIF keeps one image in {keep}: {video.note})" if keep > 1 else ""
 
 
 # ----------------------------------------------------------------------------- validate
@@ -312,6 +338,7 @@ def validate(scene_files, quiet):
     """Check scene files; report every problem with FILE:LINE:COL."""
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.scene.spec import load_scene
+    from vrsim_cli.text import plural
 
     failed = False
     for file in scene_files:
@@ -324,9 +351,9 @@ def validate(scene_files, quiet):
             continue
         if not quiet:
             impacts = f", {model.response.impacts} impacts" if model.response else ""
-            click.echo(f"{file}: ok ({model.n_body} bodies, {model.duration:g} s in "
-                       f"{model.n_steps} steps of {model.dt:.6g} s, {model.integrator}"
-                       f"{impacts})")
+            click.echo(f"{file}: ok ({plural(model.n_body, 'body')}, {model.duration:g} s in "
+                       f"{plural(model.n_steps, 'step')} of {model.dt:.6g} s, "
+                       f"{model.integrator}{impacts})")
             for note in model.notes:
                 click.echo(f"note: {file}: {note}", err=True)
     sys.exit(EXIT_INPUT if failed else 0)
@@ -370,39 +397,14 @@ def schema():
 @_reports_errors
 def info(trajectory_file, as_json):
     """Summarise a trajectory file: entities, duration, samples, channels."""
-    from vrsim_cli.tools.trajectory import read_trajectory
+    from vrsim_cli.tools.trajectory import format_summary, read_trajectory, summary
 
-    traj = read_trajectory(trajectory_file)
-    times = traj.times
-    summary = {
-        "file": trajectory_file, "format": traj.format,
-        "entities": list(traj.tracks),
-        "samples": int(len(times)),
-        "start_s": float(times[0]) if len(times) else None,
-        "end_s": float(times[-1]) if len(times) else None,
-        "duration_s": float(times[-1] - times[0]) if len(times) else 0.0,
-        "channels": [{"topic": t, "schema": s, "messages": n} for t, s, n in traj.channels],
-        "vrsim": {k: v for k, v in traj.metadata.get("vrsim", {}).items() if k != "scene"},
-    }
+    info_ = summary(read_trajectory(trajectory_file), trajectory_file)
     if as_json:
-        click.echo(json.dumps(summary, indent=2))
+        click.echo(json.dumps(info_, indent=2))
         return
-    click.echo(f"{trajectory_file}: {traj.format}, {len(traj.tracks)} entities, "
-               f"{summary['samples']} samples")
-    if len(times):
-        click.echo(f"time: {summary['start_s']:.6g} .. {summary['end_s']:.6g} s "
-                   f"(duration {summary['duration_s']:.6g} s)")
-    names = list(traj.tracks)
-    shown = ", ".join(names[:10]) + (f", ... ({len(names) - 10} more)" if len(names) > 10 else "")
-    click.echo(f"entities: {shown}")
-    if traj.channels:
-        click.echo("channels:")
-        for ch in summary["channels"]:
-            click.echo(f"  {ch['topic']:<16} {ch['schema']:<26} {ch['messages']} messages")
-    made = summary["vrsim"]
-    if made:
-        click.echo(f"made by vrsim {made.get('version', '?')} from {made.get('scene_file', '?')}"
-                   f" (dt {made.get('dt', '?')} s, {made.get('integrator', '?')})")
+    for line in format_summary(info_):
+        click.echo(line)
 
 
 # ----------------------------------------------------------------------- collision-proxies
@@ -806,6 +808,44 @@ def regress(folder, names, golden, update, junit, jobs, ray_address, atol, rtol,
                f"failed, {counts['errors']} errors ({result.wall_s:.3g} s "
                f"{describe(executor)})" + (f"; JUnit XML in {junit}" if junit else ""))
     sys.exit(0 if result.ok else 1)
+
+
+# ----------------------------------------------------------------------------- plot
+
+
+@cli.command()
+@click.argument("trajectory_file", type=click.Path())
+@click.option("-o", "--output", type=click.Path(dir_okay=False), help="PNG to write "
+              "(default: FILE's name with .png, in the current folder).")
+@click.option("--entity", "patterns", multiple=True, help="Plot the entities matching this "
+              "shell-style pattern (repeatable; default: all, at most 10).")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False), help="The scene of "
+              "the run, for the masses behind the energy (vrsim's MCAP files carry theirs).")
+@_reports_errors
+def plot(trajectory_file, output, patterns, scene_file):
+    """Plot position, speed and energy over time per entity (PNG; needs matplotlib:
+    pip install 'vrsim-cli[plot]')."""
+    from vrsim_cli.tools.plot import draw, model_of, series
+    from vrsim_cli.tools.trajectory import read_trajectory
+
+    out = Path(output) if output else Path(Path(trajectory_file).name).with_suffix(".png")
+    if out.suffix.lower() != ".png":
+        raise click.UsageError(f"'{out}': vrsim plot writes PNG; use a .png name")
+    if not out.parent.is_dir():
+        raise click.UsageError(f"folder '{out.parent}' does not exist")
+    traj = read_trajectory(trajectory_file)
+    if not traj.tracks:
+        raise InputError(f"{trajectory_file}: holds no trajectory to plot")
+    model = model_of(traj, scene_file)
+    data = series(traj, model, patterns)
+    note = None
+    if model is None:
+        note = "energy needs the masses: give the scene with --scene"
+    elif not any(s["energy"] is not None for s in data["entities"].values()):
+        note = "no body with a finite mass and velocities among these entities"
+    draw(data, f"{Path(trajectory_file).name}", out, note)
+    click.echo(f"wrote {out}: position, speed and energy of "
+               f"{', '.join(data['entities'])}")
 
 
 def main() -> None:

@@ -109,7 +109,8 @@ def prepare(model: Model, say: Callable[..., None] | None = None) -> None:
 def run(model: Model, state: State, writer=None, *, realtime: bool = False,
         should_stop: Callable[[], bool] | None = None,
         on_frame: Callable[[State], None] | None = None,
-        render: Callable[[State], None] | None = None) -> RunResult:
+        render: Callable[[State], None] | None = None,
+        resume: bool = False) -> RunResult:
     """Run `model` from `state` to the end (or until `should_stop()` is true at a frame).
 
     `writer` receives samples; it is not closed here. On a blow-up the last good state is
@@ -121,6 +122,11 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
     sensors, rendering, pacing or callbacks) the dynamics runs as one compiled call of
     many steps (`dynamics.run`, like `mj_step(nstep)`). Stages still written in Python
     per step (the scene graph of animated scenes, collision) make the loop step by step.
+
+    `resume`: `state` is where an earlier run of this model stopped (at a frame, through
+    `should_stop`); the set-up of a run's first state (kinematic poses at t, attaching the
+    observer to its body) is skipped, so running in pieces gives the states of one run,
+    bit for bit (the Python API's Simulation.step relies on it).
     """
     clock = time.perf_counter
     profile = {"sensors": 0.0, "navigation": 0.0, "dynamics": 0.0, "checks": 0.0,
@@ -145,6 +151,7 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
                   or on_frame is not None or should_stop is not None)
     if animate:
         profile["scenegraph"] = 0.0
+    if animate and not resume:
         t0 = clock()
         state = scenegraph.step(model, state)  # 3. the first sample is exact too
         profile["scenegraph"] += clock() - t0
@@ -211,7 +218,7 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
 
     if render is not None:
         profile["render"] = 0.0
-    if model.observer is not None and model.observer.mode == "attached":
+    if model.observer is not None and model.observer.mode == "attached" and not resume:
         state = result.state = navigation.attach(model, state)  # on its body from t = 0
     frame_start = frame_end = state
     motion = ()

@@ -50,7 +50,7 @@ def compile_frames(scene: Scene, problems: list[Problem]) -> FramesSpec | None:
                                           "move look_at, or give another up direction"))
     if "dir" not in frames:
         return None
-    folder = scene.resolve_path(at + ("dir",), problems)
+    folder = scene.resolve_path(at + ("dir",), problems, output=True)
     if folder is None:
         return None
     return FramesSpec(dir=folder, every=int(frames.get("every", DEFAULT_FRAME_EVERY)),

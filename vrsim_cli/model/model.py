@@ -55,6 +55,7 @@ class OutputSpec:
     path: Path | None
     format: str | None
     every_steps: int  # one sample every this many physics steps
+    up: str = "y"  # the scene's up axis, 'y' or 'z': MCAP turns it to Foxglove's z-up world
 
 
 @dataclass(frozen=True)
@@ -311,21 +312,22 @@ def output_format_for(path: Path, explicit: str | None) -> str | None:
 
 def _output_spec(scene: Scene, out: dict, override, every_steps: int,
                  problems: list[Problem]) -> OutputSpec:
+    up = out.get("up", "y")
     if override is not None:
         path, fmt = override
-        return OutputSpec(Path(path), fmt, every_steps)
+        return OutputSpec(Path(path), fmt, every_steps, up)
     if "file" not in out:
-        return OutputSpec(None, None, every_steps)
-    path = scene.resolve_path(("output", "file"), problems)
+        return OutputSpec(None, None, every_steps, up)
+    path = scene.resolve_path(("output", "file"), problems, output=True)
     if path is None:
-        return OutputSpec(None, None, every_steps)
+        return OutputSpec(None, None, every_steps, up)
     fmt = output_format_for(path, out.get("format"))
     if fmt is None:
         problems.append(scene.problem(("output", "file"), f"cannot tell the format of "
                                       f"'{out['file']}'", "use a .mcap or .csv suffix, or set "
                                       "output.format (tum writes a folder)"))
     problems.extend(_output_target_problems(scene, path, fmt))
-    return OutputSpec(path, fmt, every_steps)
+    return OutputSpec(path, fmt, every_steps, up)
 
 
 def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[Problem]:
@@ -336,7 +338,7 @@ def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[P
         return [scene.problem(at, "the output would overwrite the scene file itself")]
     if not path.parent.is_dir():
         return [scene.problem(at, f"folder '{path.parent}' does not exist",
-                              "paths are relative to the scene file's folder")]
+                              "output paths are relative to the current folder")]
     if fmt in ("csv", "mcap") and path.is_dir():
         return [scene.problem(at, f"'{scene.get(at)}' is a folder; {fmt} output is a file")]
     if fmt == "tum" and path.exists() and not path.is_dir():
