@@ -19,17 +19,26 @@ PACKAGE = "vrsim_cli"
 LAYERS = {
     "vrsim_cli": 0,  # the package itself: __version__ only
     "vrsim_cli.errors": 0,
+    "vrsim_cli.text": 0,  # plurals and aligned tables for every command's output
     "vrsim_cli.maths": 0,
     "vrsim_cli.scene": 1,
     "vrsim_cli.model": 2,
+    "vrsim_cli.kernels": 3,  # compiled loops of the stages: arrays in, arrays out
     "vrsim_cli.stages": 4,
     "vrsim_cli.render": 4,  # loop stage 3, handed to the loop as a callback
     "vrsim_cli.loop": 5,
     "vrsim_cli.writers": 6,
     "vrsim_cli.tools": 7,
     "vrsim_cli.cli": 8,
+    "vrsim_cli.api": 8,  # the Python API, beside the CLI
     "vrsim_cli.__main__": 8,
 }
+# The one import allowed to go up: the package root re-exports the API lazily (PEP 562: an
+# import inside its module-level `__getattr__`, run only when a user reads
+# `vrsim_cli.load`), so `import vrsim_cli` stays cheap. It is left out of the graph; the
+# tests below check that it is the only such import and that no module of the package
+# reaches the API through the root.
+LAZY_FACADE = {(PACKAGE, f"{PACKAGE}.api")}
 STAGE_ROOTS = ("vrsim_cli.stages.", "vrsim_cli.render")
 
 
@@ -44,15 +53,28 @@ def modules(root: Path, package: str = PACKAGE) -> dict[str, Path]:
     return found
 
 
-def import_graph(root: Path, package: str = PACKAGE) -> dict[str, set[tuple[str, int]]]:
+def lazy_imports(tree: ast.Module) -> set[int]:
+    """ids of the import nodes inside a module-level `def __getattr__` (PEP 562)."""
+    inside = set()
+    for top in tree.body:
+        if isinstance(top, ast.FunctionDef) and top.name == "__getattr__":
+            inside |= {id(n) for n in ast.walk(top) if isinstance(n, (ast.Import, ast.ImportFrom))}
+    return inside
+
+
+def import_graph(root: Path, package: str = PACKAGE, lazy: list | None = None,
+                 facade=frozenset(LAZY_FACADE)) -> dict[str, set[tuple[str, int]]]:
     """module -> {(imported module, line)} for imports of the package's own modules,
     wherever they stand in the file. `from a.b import c` is an edge to a.b.c when that is a
-    module, else to a.b."""
+    module, else to a.b. Edges in `facade` made from the package root's `__getattr__` are
+    left out and appended to `lazy` as (module, target, line)."""
     known = modules(root, package)
     graph: dict[str, set[tuple[str, int]]] = {name: set() for name in known}
     for name, path in known.items():
         is_package = path.name == "__init__.py"
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        tree = ast.parse(path.read_text(), str(path))
+        in_getattr = lazy_imports(tree) if name == package else set()
+        for node in ast.walk(tree):
             targets = []
             if isinstance(node, ast.Import):
                 targets = [alias.name for alias in node.names]
@@ -69,8 +91,13 @@ def import_graph(root: Path, package: str = PACKAGE) -> dict[str, set[tuple[str,
                 if target == package or target.startswith(package + "."):
                     while target not in known and "." in target:  # a name in a module
                         target = target.rsplit(".", 1)[0]
-                    if target != name:
-                        graph[name].add((target, node.lineno))
+                    if target == name:
+                        continue
+                    if id(node) in in_getattr and (name, target) in facade:
+                        if lazy is not None:
+                            lazy.append((name, target, node.lineno))
+                        continue
+                    graph[name].add((target, node.lineno))
     return graph
 
 
@@ -147,6 +174,35 @@ def test_the_package_has_no_import_cycle():
 
 def test_imports_flow_down_the_layers_and_stages_stay_apart():
     assert violations(import_graph(REPO)) == []
+
+
+def test_the_lazy_api_import_is_the_only_way_up_and_nothing_uses_it():
+    """The root's `__getattr__` imports vrsim_cli.api and nothing else; no module of the
+    package reads an API name from the root (that would close a cycle through the API)."""
+    lazy: list = []
+    import_graph(REPO, lazy=lazy)
+    assert [(m, t) for m, t, _ in lazy] == [(PACKAGE, f"{PACKAGE}.api")]
+    api_names = set(__import__(PACKAGE).API)
+    for module, path in modules(REPO).items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module == PACKAGE and not node.level:
+                taken = {alias.name for alias in node.names} & api_names
+                assert not taken, f"{module} imports {taken} from the package root"
+
+
+def test_the_facade_exemption_is_narrow(tmp_path):
+    """Only an import inside the root's `__getattr__` is exempt: the same import at
+    module level, or of another module, is still an upward import."""
+    root = _fake_package(tmp_path, {
+        "api.py": "x = 1\n",
+        "cli.py": "y = 1\n",
+    })
+    (root / PACKAGE / "__init__.py").write_text(
+        "def __getattr__(name):\n    from vrsim_cli import api\n    from vrsim_cli import cli\n"
+        "from vrsim_cli import api\n")
+    bad = violations(import_graph(root))
+    assert bad == ["vrsim_cli:4 imports vrsim_cli.api (layer 8 above 0)",
+                   "vrsim_cli:3 imports vrsim_cli.cli (layer 8 above 0)"]
 
 
 def test_every_module_is_in_a_layer():

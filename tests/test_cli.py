@@ -38,10 +38,24 @@ def test_run_without_output_writes_nothing_and_says_so(invoke, write_scene, tmp_
     assert [p.name for p in tmp_path.iterdir()] == ["scene.yaml"]
 
 
-def test_scene_output_file_is_relative_to_the_scene(invoke, write_scene, tmp_path):
-    scene = write_scene(BALL + "output: {file: traj.mcap, rate: 10}\n")
-    assert invoke("run", scene).exit_code == 0
-    assert len(read_trajectory(tmp_path / "traj.mcap").times) == 11
+def test_scene_output_file_is_relative_to_the_current_folder(invoke, write_scene, tmp_path,
+                                                           monkeypatch):
+    """Not beside the scene: `vrsim run scenarios/x.yaml` must not write into the
+    checkout's scenarios folder."""
+    (tmp_path / "scenes").mkdir()
+    scene = write_scene(BALL + "output: {file: traj.mcap, rate: 10}\n", "scenes/s.yaml")
+    (tmp_path / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "work")
+    result = invoke("run", scene)
+    assert result.exit_code == 0, result.output
+    assert f"-> {tmp_path / 'work' / 'traj.mcap'}" in result.stdout
+    assert len(read_trajectory(tmp_path / "work" / "traj.mcap").times) == 11
+    assert sorted(p.name for p in (tmp_path / "scenes").iterdir()) == ["s.yaml"]
+    escape = write_scene(BALL + "output: {file: ../traj.csv}\n", "scenes/e.yaml")
+    result = invoke("run", escape)
+    assert result.exit_code == 2
+    assert "path '../traj.csv' leaves the current folder" in result.stderr
+    assert "-o FILE" in result.stderr
 
 
 def test_overrides(invoke, write_scene, tmp_path):
@@ -188,7 +202,7 @@ def test_validate(invoke, write_scene, tmp_path):
     bad = write_scene("vrsim: 1\nduration: x\n", "bad.yaml")
     result = invoke("validate", good)
     assert result.exit_code == 0
-    assert result.stdout == f"{good}: ok (1 bodies, 1 s in 100 steps of 0.01 s, symplectic-euler)\n"
+    assert result.stdout == f"{good}: ok (1 body, 1 s in 100 steps of 0.01 s, symplectic-euler)\n"
     result = invoke("validate", good, bad)
     assert result.exit_code == 2
     assert f"{good}: ok" in result.stdout
@@ -215,9 +229,17 @@ def test_info(invoke, write_scene, tmp_path):
     result = invoke("info", out)
     assert result.exit_code == 0
     assert result.stdout.splitlines()[:3] == [
-        f"{out}: mcap, 1 entities, 51 samples", "time: 0 .. 1 s (duration 1 s)",
+        f"{out}: mcap, 1 entity, 51 samples", "time: 0 .. 1 s (duration 1 s)",
         "entities: ball"]
-    assert "/tf              foxglove.FrameTransforms   51 messages" in result.stdout
+    # a table whose columns fit the longest topic and schema, numbers right-aligned
+    table = result.stdout.split("channels:\n")[1].splitlines()[:4]
+    assert table[0].split() == ["topic", "schema", "messages"]
+    assert sorted(line.split() for line in table[1:]) == [
+        ["/scene", "foxglove.SceneUpdate", "1"], ["/tf", "foxglove.FrameTransforms", "51"],
+        ["/vrsim/state", "vrsim.State", "51"]]
+    assert len({line.index(" foxglove.") if " foxglove." in line else line.index(" vrsim.")
+                for line in table[1:]}) == 1
+    assert len({len(line) for line in table}) == 1
     data = json.loads(invoke("info", out, "--json").stdout)
     assert data["samples"] == 51 and data["vrsim"]["integrator"] == "symplectic-euler"
 
@@ -345,3 +367,18 @@ def test_the_foundation_issues_example_scene_runs_and_says_what_is_unused(invoke
            "effect without a top-level collision block" in result.stderr
     assert "dt = 0.001 s does not divide the frame interval 1/90 s" in result.stderr
     assert set(read_trajectory(tmp_path / "ball.mcap").tracks) == {"ball", "observer"}
+
+
+def test_compile_notice_reports_only_what_this_run_compiled(invoke, write_scene, tmp_path,
+                                                             monkeypatch):
+    """A process that compiled kernels earlier (an API user, this suite on a fresh machine)
+    must not announce that compile again on every later run: the notice is the seconds
+    compiled by this run's prepare, not the process total."""
+    from vrsim_cli.kernels import jit
+
+    scene = write_scene(BALL)
+    assert invoke("run", scene, "-o", tmp_path / "warm.csv").exit_code == 0
+    monkeypatch.setattr(jit._WATCH, "seconds", jit._WATCH.seconds + 31.0)  # an earlier compile
+    result = invoke("run", scene, "-o", tmp_path / "o.csv")
+    assert result.exit_code == 0
+    assert "compiled in" not in result.stderr, result.stderr

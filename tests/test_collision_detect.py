@@ -8,7 +8,6 @@ import math
 
 import numpy as np
 import pytest
-from mcap.reader import make_reader
 
 from vrsim_cli.errors import InputError
 from vrsim_cli.loop import run
@@ -17,6 +16,7 @@ from vrsim_cli.model.state import make_state
 from vrsim_cli.scene.spec import load_scene, parse_scene
 from vrsim_cli.stages.collision import Contacts, detect, step
 
+import mcap_messages
 from conftest import SCENARIOS
 
 
@@ -185,16 +185,14 @@ def test_scenario_writes_contacts_foxglove_can_draw(invoke, tmp_path):
     out = tmp_path / "c.mcap"
     result = invoke("run", SCENARIOS / "collision.yaml", "-o", out, "-q")
     assert result.exit_code == 0, result.output
-    with open(out, "rb") as f:
-        messages = [(ch.topic, json.loads(m.data)) for _, ch, m in make_reader(f).iter_messages(
-            topics=["/vrsim/contacts", "/vrsim/contacts/raw"])]
-    raw = [m for topic, m in messages if topic == "/vrsim/contacts/raw"]
-    drawn = [m for topic, m in messages if topic == "/vrsim/contacts"]
+    messages = mcap_messages.read(out, topics=["/vrsim/contacts", "/vrsim/contacts/raw"])[0]
+    raw = [m for _, m in messages["/vrsim/contacts/raw"]]
+    drawn = [m for _, m in messages["/vrsim/contacts"]]
     assert len(raw) == len(drawn) == 100  # every sample after the first step
-    swept = [c for m in raw for c in m["contacts"] if c["toi"] is not None]
+    swept = [c for m in raw for c in m["contacts"] if c["toi"] != "NaN"]  # NaN: not swept
     assert [(c["body_a"], c["body_b"]) for c in swept][:1] == [("wall", "bullet")]
     entity = drawn[0]["entities"][0]
-    assert entity["frame_id"] == "world"
+    assert entity["frame_id"] == "scene"
     assert len(entity["arrows"]) == len(entity["spheres"]) == len(raw[0]["contacts"]) > 0
 
 

@@ -132,7 +132,7 @@ def test_velocity_error_and_tum_without_velocities(invoke, tmp_path):
         for t, p in zip(ref["t"], ref["pos"])))
     result = invoke("compare", tum, a)
     assert result.exit_code == 0, result.output  # same poses; velocities cannot be compared
-    assert "note: velocities not compared for 1 entities (ball)" in result.stdout
+    assert "note: velocities not compared for 1 entity (ball)" in result.stdout
     assert json.loads(invoke("compare", tum, a, "--json").stdout)["velocity_not_compared"] \
         == ["ball"]
 

@@ -176,12 +176,14 @@ def test_failed_tum_run_leaves_no_folder_behind(invoke, write_scene, tmp_path, m
 
 
 @pytest.fixture
-def folders(tmp_path):
-    """(scene folder, a folder outside it holding a file 'secret.txt')."""
+def folders(tmp_path, monkeypatch):
+    """(scene folder, a folder outside it holding a file 'secret.txt'); the test runs in
+    the scene folder (a scene's outputs are relative to the current folder)."""
     inside, outside = tmp_path / "scene", tmp_path / "outside"
     inside.mkdir()
     outside.mkdir()
     (outside / "secret.txt").write_text("secret\n")
+    monkeypatch.chdir(inside)
     return inside, outside
 
 
@@ -205,14 +207,14 @@ def test_scene_output_outside_its_folder_is_refused(invoke, folders, target):
     scene.write_text(BALL + f"output: {{file: '{target}'{fmt}}}\n")
     result = invoke("run", scene)
     assert result.exit_code == 2
-    assert "output.file: path" in result.stderr and "leaves the scene file's folder" in \
+    assert "output.file: path" in result.stderr and "leaves the current folder" in \
         result.stderr
     assert listing(outside) == before
 
 
 def test_a_tilde_is_not_the_home_folder_in_a_scene(invoke, folders):
     """`~` is expanded for -o (the user's shell habit) but not in a scene: there it is a
-    folder name inside the scene's folder, which here does not exist."""
+    folder name inside the current folder, which here does not exist."""
     inside, _outside = folders
     scene = inside / "scene.yaml"
     scene.write_text(BALL + "output: {file: ~/vrsim-test-out.csv}\n")

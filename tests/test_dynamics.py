@@ -240,29 +240,50 @@ bodies: [{{name: p, mass: 1, forces: [{{force: [1, 0, 0], start: 0, end: 0.005}}
 
 
 @pytest.mark.parametrize("name", ["verlet", "dopri5"])
-def test_second_and_fifth_order_integrators_are_exact_for_projectiles(name):
+@pytest.mark.parametrize("shape", ["", ", shape: {type: sphere, radius: 0.1}"])
+def test_second_and_fifth_order_integrators_are_exact_for_projectiles(name, shape):
     # Constant acceleration: Verlet's half kicks and Dormand-Prince (order 5) both
-    # reproduce x0 + v0 t + a t^2 / 2 up to round-off.
-    x, v, dt = X0.copy(), V0.copy(), 0.01
-    for k in range(150):
-        x, v = INTEGRATORS[name](lambda t, xx, vv: G, k * dt, dt, x, v)
-    assert np.abs(x - closed_form(1.5)).max() < ROUND_OFF_M
-    assert np.abs(v - (V0 + G * 1.5)).max() < ROUND_OFF_M
+    # reproduce x0 + v0 t + a t^2 / 2 up to round-off, for a point mass and for a sphere
+    # (a rigid body: the rotating path of the compiled step).
+    model = compile_model(parse_scene(f"""
+vrsim: 1
+duration: 1.5
+frame_rate: 100
+dt: 0.01
+integrator: {name}
+bodies: [{{name: ball, mass: 0.2, position: {X0.tolist()}, velocity: {V0.tolist()}{shape}}}]
+"""))
+    state = run(model, make_state(model)).state
+    assert np.abs(state.body_pos[0] - closed_form(1.5)).max() < ROUND_OFF_M
+    assert np.abs(state.body_vel[0] - (V0 + G * 1.5)).max() < ROUND_OFF_M
 
 
-@pytest.mark.parametrize("name,kwargs", [("verlet", {}), ("dopri5", {"tolerance": 1.0})])
-def test_measured_order_on_an_oscillator(name, kwargs):
-    # x'' = -x from (1, 0): x(t) = cos t. dopri5 with tolerance 1 accepts every step
-    # whole, so its fixed-step order shows. log2 of the error ratio tends to the order as
-    # p + O(dt): within 0.1 at these steps.
-    errors = []
-    for dt in (0.1, 0.05, 0.025):
-        x, v = np.array([1.0]), np.array([0.0])
-        steps = round(2.0 / dt)
-        for k in range(steps):
-            x, v = INTEGRATORS[name](lambda t, xx, vv: -xx, k * dt, dt, x, v, **kwargs)
-        # The error of the whole state (x alone can cancel amplitude against phase).
-        errors.append(math.hypot(x[0] - math.cos(2.0), v[0] + math.sin(2.0)))
+def oscillator_error(integrator: str, dt: float, extra: str = "") -> float:
+    """x'' = -x from (1, 0) (1 kg on a 1 N/m spring to a world anchor at the origin):
+    x(t) = cos t; the error of the whole state (x alone can cancel amplitude against
+    phase) at t = 2 s."""
+    model = compile_model(parse_scene(f"""
+vrsim: 1
+duration: 2
+frame_rate: {1.0 / dt}
+dt: {dt}
+integrator: {integrator}
+gravity: [0, 0, 0]
+{extra}
+bodies: [{{name: p, mass: 1, position: [1, 0, 0]}}]
+springs: [{{body: p, anchor: [0, 0, 0], stiffness: 1, rest_length: 0}}]
+"""))
+    state = run(model, make_state(model)).state
+    return math.hypot(state.body_pos[0, 0] - math.cos(2.0),
+                      state.body_vel[0, 0] + math.sin(2.0))
+
+
+@pytest.mark.parametrize("name,extra", [("verlet", ""), ("rk4", ""),
+                                        ("dopri5", "tolerance: 1.0")])
+def test_measured_order_on_an_oscillator(name, extra):
+    # dopri5 with tolerance 1 accepts every step whole, so its fixed-step order shows.
+    # log2 of the error ratio tends to the order as p + O(dt): within 0.1 at these steps.
+    errors = [oscillator_error(name, dt, extra) for dt in (0.1, 0.05, 0.025)]
     orders = [math.log2(errors[i] / errors[i + 1]) for i in range(2)]
     assert orders[1] == pytest.approx(ORDER[name], abs=0.1), orders
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO
-from vrsim_cli.writers.png import encode_png
+from vrsim_cli.writers.frames import encode_png
 
 
 def read_png(data: bytes) -> np.ndarray:
@@ -107,7 +107,7 @@ def test_run_with_frames_writes_every_nth_frame_at_the_asked_size(invoke, write_
 
 
 @pytest.mark.osmesa
-def test_scene_frames_dir_is_relative_to_the_scene(invoke, write_scene, tmp_path):
+def test_scene_frames_dir_is_relative_to_the_current_folder(invoke, write_scene, tmp_path):
     scene = write_scene(STATIC.replace("every: 3", "every: 5, dir: shots"))
     assert invoke("run", scene, "-q").exit_code == 0
     assert sorted(p.name for p in (tmp_path / "shots").iterdir()) == [
@@ -115,7 +115,7 @@ def test_scene_frames_dir_is_relative_to_the_scene(invoke, write_scene, tmp_path
 
 
 @pytest.mark.parametrize("frames,message", [
-    ("{dir: ../up}", "output.frames.dir: path '../up' leaves the scene file's folder"),
+    ("{dir: ../up}", "output.frames.dir: path '../up' leaves the current folder"),
     ("{camera: {position: [1, 2, 3], look_at: [1, 2, 3]}}",
      "output.frames.camera: the camera's position and look_at point coincide"),
     ("{camera: {position: [0, 5, 0], look_at: [0, 0, 0]}}",

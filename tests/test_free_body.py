@@ -18,9 +18,6 @@ rounded up.
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -31,6 +28,7 @@ from scipy.integrate import solve_ivp
 from test_rigid import (MOMENTS, OMEGA0, free_box_scene, reference, rotation_angle,
                         simulate)
 from vrsim_cli.errors import InputError
+from vrsim_cli.kernels.free_flow import exact_free_rotation
 from vrsim_cli.loop import run
 from vrsim_cli.maths.rotation import axis_rotation
 from vrsim_cli.maths.spatial import quat_to_matrix
@@ -38,7 +36,6 @@ from vrsim_cli.model.model import compile_model
 from vrsim_cli.model.state import make_state
 from vrsim_cli.scene.spec import parse_scene
 from vrsim_cli.stages.dynamics import rigid
-from vrsim_cli.stages.dynamics.free_body import exact_free_rotation
 
 EXACT = "rotation: {free_flow: exact}"
 
@@ -355,20 +352,3 @@ def test_free_flow_without_a_splitting_integrator_is_noted():
     assert any("free_flow: exact has no effect with integrator rk4" in n for n in model.notes)
     model = compile_model(parse_scene(free_box_scene("verlet", 0.01, 1.0, extra=EXACT)))
     assert model.rigid.free_flow == "exact" and not model.notes
-
-
-def test_only_the_exact_flow_imports_scipy(tmp_path):
-    # scipy is loaded by the run that needs it, not by a splitting run of the same scene.
-    results = {}
-    for name, extra in (("splitting", ""), ("exact", EXACT)):
-        path = tmp_path / f"{name}.yaml"
-        path.write_text(free_box_scene("verlet", 0.01, 0.1, extra=extra))
-        code = (f"import sys\nfrom vrsim_cli.cli import main\nsys.argv = ['vrsim', 'run', "
-                f"{str(path)!r}, '-q', '-o', {str(tmp_path / (name + '.csv'))!r}]\n"
-                f"try:\n    main()\nexcept SystemExit as exc:\n    assert exc.code in (0, None)\n"
-                f"import json; print(json.dumps('scipy' in sys.modules))")
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                             check=True)
-        results[name] = json.loads(out.stdout.strip().splitlines()[-1])
-    assert results == {"splitting": False, "exact": True}
-

@@ -1,64 +1,75 @@
-"""Every scenario against its golden trajectory and its pinned state hash (tests/golden.py).
+"""Every scenario against its golden trajectory and its pinned state hash, through
+`vrsim regress` (vrsim_cli/tools/regress.py; tests/golden.py says how to regenerate).
 
-A scenario without a golden fails with the command that makes one; regenerating is a
-deliberate act (`python tests/golden.py --update`, docs/regression.md).
+A scenario without a golden or a pin fails with the command that makes one; regenerating
+is a deliberate act (`vrsim regress scenarios --golden tests/golden --update`,
+docs/regression.md). The scenarios run twice, on a pool of two worker processes and in
+this process: the same hashes and the same golden bytes from both are the reproducibility
+the goldens rely on, and show that the executor does not change a bit.
 """
 
 from __future__ import annotations
 
-import gzip
-import shutil
-
 import pytest
 
 import golden
-from conftest import SCENARIOS
+from vrsim_cli.tools import regress
+from vrsim_cli.tools.executors import LocalPool, Serial
 
-NAMES = golden.scenario_names()
+NAMES = sorted(regress.scene_files(golden.SCENARIOS))
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory):
-    """name -> two runs of the scenario through `vrsim run`: [(state hash, CSV path)] * 2."""
-    out = {}
-    folder = tmp_path_factory.mktemp("golden-runs")
-    for name in NAMES:
-        out[name] = []
-        for i in range(2):
-            csv = folder / f"{name}-{i}.csv"
-            out[name].append((golden.run_scenario(SCENARIOS / f"{name}.yaml", csv), csv))
+def results():
+    """(result on two worker processes, result in this process) of every scenario."""
+    plan = regress.plan_regress(golden.SCENARIOS, golden.GOLDEN)
+    out = []
+    for executor in (LocalPool(2), Serial()):
+        try:
+            out.append(regress.run_regress(plan, executor,
+                                           update_command=golden.REGENERATE))
+        finally:
+            executor.close()
     return out
 
 
 def test_there_are_scenarios():
-    assert NAMES, f"no scenarios in {SCENARIOS}"
+    assert NAMES, f"no scenarios in {golden.SCENARIOS}"
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_scenario_matches_its_golden(name, runs):
-    path = golden.golden_path(name)
+def test_scenario_matches_its_golden(name, results):
+    path = regress.golden_path(golden.GOLDEN, name)
     assert path.exists(), (f"scenario '{name}' has no golden trajectory {path}: "
                            f"run `{golden.REGENERATE}` and review the new file")
-    ok, lines = golden.check(name, runs[name][0][1])
-    assert ok, "\n".join(lines) + (f"\nIf this change in the numbers is intended, run "
-                                   f"`{golden.REGENERATE}` and commit the goldens.")
+    case = results[0].cases[name]
+    assert case.outcome.status == "ok", case.reasons
+    assert case.outcome.ok, "\n".join(case.lines) + (
+        f"\nIf this change in the numbers is intended, run `{golden.REGENERATE}` and "
+        f"commit the goldens.")
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_two_runs_give_the_same_hash_and_the_same_bytes(name, runs):
-    (hash1, csv1), (hash2, csv2) = runs[name]
-    assert hash1 == hash2
-    assert csv1.read_bytes() == csv2.read_bytes()
+def test_two_runs_give_the_same_hash_and_the_same_bytes(name, results):
+    pool, serial = (r.cases[name].outcome for r in results)
+    assert pool.state_sha256 == serial.state_sha256
+    assert pool.csv == serial.csv and pool.csv
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_state_hash_equals_the_pin_for_this_platform(name, runs):
-    pins = golden.load_hashes().get(golden.platform_key(), {})
-    assert name in pins, (f"no pinned state hash for scenario '{name}' on "
-                          f"{golden.platform_key()}: run `{golden.REGENERATE}`")
-    assert runs[name][0][0] == pins[name], (
-        f"'{name}' no longer reproduces its pinned final state bit for bit on "
-        f"{golden.platform_key()}; if intended, run `{golden.REGENERATE}`")
+def test_state_hash_equals_the_pin_for_this_platform(name, results):
+    pins = regress.plan_regress(golden.SCENARIOS, golden.GOLDEN, [name]).pins or {}
+    platform = regress.platform_key()
+    assert name in pins.get(platform, {}), (f"no pinned state hash for scenario '{name}' on "
+                                            f"{platform}: run `{golden.REGENERATE}`")
+    assert results[0].cases[name].outcome.state_sha256 == pins[platform][name], (
+        f"'{name}' no longer reproduces its pinned final state bit for bit on {platform}; "
+        f"if intended, run `{golden.REGENERATE}`")
+
+
+def test_regress_passes_as_a_whole(results):
+    """What CI would see: every scene passes (trajectory and pin), none errs."""
+    assert results[0].ok, {n: c.reasons for n, c in results[0].cases.items() if c.reasons}
 
 
 def test_no_golden_without_a_scenario():
@@ -67,57 +78,21 @@ def test_no_golden_without_a_scenario():
     assert not stale, f"goldens of removed scenarios: {stale}; run `{golden.REGENERATE}`"
 
 
-def test_gzip_is_deterministic_with_no_name_and_no_time():
-    data = b"t,entity\n0.0,ball\n"
-    blob = golden.gzip_bytes(data)
-    assert blob == golden.gzip_bytes(data) and gzip.decompress(blob) == data
-    # RFC 1952 header: FLG byte 3 has no FNAME bit (0x08); MTIME bytes 4-7 are zero
-    assert blob[3] & 0x08 == 0 and blob[4:8] == b"\0\0\0\0"
+def test_every_scene_tolerance_names_a_scenario_and_is_looser_than_the_default():
+    """A tolerance for a scenario that does not exist is a typo that loosens nothing; a
+    scene entry tighter than the default would be a mistake in the other direction."""
+    tol = regress.load_tolerances(golden.GOLDEN / regress.TOLERANCES)
+    assert tol.default.atol == 1e-9 and tol.default.angle_tol == 1e-9
+    for name, scene_tol in tol.scenes.items():
+        assert name in NAMES, f"tolerances.yaml names '{name}', which is no scenario"
+        assert scene_tol.atol >= tol.default.atol
+        assert scene_tol.angle_tol >= tol.default.angle_tol
 
 
-def test_thinning_keeps_first_last_and_at_most_the_limit():
-    header = "t,entity,x\n"
-    rows = "".join(f"{i / 100!r},a,{i}\n{i / 100!r},b,{i}\n" for i in range(151))
-    thin = golden.thin_csv(header + rows, keep=21)
-    times = sorted({float(r.split(",")[0]) for r in thin.splitlines()[1:]})
-    assert times[0] == 0.0 and times[-1] == 1.5 and len(times) <= 21
-    assert len(thin.splitlines()) == 1 + 2 * len(times)  # every entity of a kept time
-
-
-SCENE = """vrsim: 1
-name: drop
-duration: 0.5
-frame_rate: 20
-dt: 0.01
-bodies: [{name: ball, mass: 1, position: [0, 1, 0]}]
-"""
-
-
-def test_regenerate_check_and_the_missing_golden_message(tmp_path, capsys):
-    scenarios, gold = tmp_path / "scenarios", tmp_path / "golden"
-    scenarios.mkdir()
-    (scenarios / "drop.yaml").write_text(SCENE)
-    assert golden.main([], scenarios, gold) == 1
-    assert f"drop: no golden file drop.csv.gz; create it with `{golden.REGENERATE}`" \
-        in capsys.readouterr().out
-    assert golden.main(["--update"], scenarios, gold) == 0
-    first = (gold / "drop.csv.gz").read_bytes()
-    assert golden.main([], scenarios, gold) == 0
-    assert golden.main(["--update"], scenarios, gold) == 0
-    assert "drop: golden unchanged" in capsys.readouterr().out
-    assert (gold / "drop.csv.gz").read_bytes() == first  # the diff of a rerun is empty
-    # a change in the physics: the check fails, an update reports the change and rewrites
-    (scenarios / "drop.yaml").write_text(SCENE.replace("position: [0, 1, 0]",
-                                                       "position: [0, 1.001, 0]"))
-    assert golden.main([], scenarios, gold) == 1
-    assert golden.main(["--update"], scenarios, gold) == 0
-    out = capsys.readouterr().out
-    assert "largest position error: 0.001 m" in out and "state sha256 " in out
-    assert golden.main([], scenarios, gold) == 0
-    # a removed scenario takes its golden and pins with it
-    shutil.copy(scenarios / "drop.yaml", scenarios / "other.yaml")
-    golden.main(["--update"], scenarios, gold)
-    (scenarios / "other.yaml").unlink()
-    golden.main(["--update"], scenarios, gold)
-    assert sorted(p.name for p in gold.iterdir()) == ["drop.csv.gz", "hashes.json"]
-    assert golden.main(["nonesuch"], scenarios, gold) == 2
+def test_the_shim_runs_vrsim_regress(capsys):
+    """`python tests/golden.py NAME` is `vrsim regress scenarios --golden tests/golden NAME`."""
+    assert golden.command(["--update", "x"])[:4] == ["regress", str(golden.SCENARIOS),
+                                                      "--golden", str(golden.GOLDEN)]
+    assert golden.main(["projectile", "--jobs", "1"]) == 0
+    assert "projectile: ok" in capsys.readouterr().out
+    assert golden.main(["nonesuch"]) == 2

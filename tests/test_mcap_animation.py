@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import json
-
-import numpy as np
-from mcap.reader import make_reader
-
+import mcap_messages
 from conftest import SCENARIOS
 from vrsim_cli.loop import run
 from vrsim_cli.model.keyframes import evaluate
@@ -14,19 +10,14 @@ from vrsim_cli.model.model import compile_model
 from vrsim_cli.model.state import make_state
 from vrsim_cli.scene.spec import load_scene, parse_scene
 from vrsim_cli.writers import open_writer
-from vrsim_cli.writers.mcap_animation import scaled
+from vrsim_cli.writers.foxglove_scene import scene_entity
 
 
 def messages(model, path):
     writer = open_writer(model, path, "mcap")
     run(model, make_state(model), writer)
     writer.close()
-    out: dict = {}
-    with open(path, "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages():
-            out.setdefault(channel.topic, []).append((message.log_time,
-                                                      json.loads(message.data)))
-    return out
+    return mcap_messages.read(path)[0]
 
 
 def test_keyframes_scenario_animates_colour_scale_and_attributes(tmp_path):
@@ -43,7 +34,8 @@ def test_keyframes_scenario_animates_colour_scale_and_attributes(tmp_path):
         assert lamp["name"] == "lamp"
         assert lamp["color"] == evaluate(lamp_color[1], t)[0].tolist()
         assert lamp["scale"] == [float(evaluate(lamp_scale[1], t)[0])] * 3
-        assert lamp["attributes"] == {"intensity": float(evaluate(intensity, t)[0])}
+        assert lamp["attributes"] == [{"name": "intensity",
+                                       "value": [float(evaluate(intensity, t)[0])]}]
     # /scene: every body once at the start, then only the lamp, each time it changed
     scene = topics["/scene"]
     assert [e["id"] for e in scene[0][1]["entities"]] == ["camera_rig", "lamp", "ground", "observer"]
@@ -74,10 +66,9 @@ bodies:
 
 
 def test_scaled_cylinders_swap_y_and_z_sizes():
-    entity = {"spheres": [], "cubes": [], "models": [], "cylinders": [
-        {"pose": {"position": {"x": 0.0, "y": 0.0, "z": 0.0}},
-         "size": {"x": 1.0, "y": 1.0, "z": 2.0}}]}
-    size = scaled(entity, [2.0, 3.0, 5.0])["cylinders"][0]["size"]
+    entity = scene_entity("c", {"type": "cylinder", "radius": 0.5, "length": 2.0},
+                          (1, 1, 1, 1), 0, scale=[2.0, 3.0, 5.0])
+    decoded = mcap_messages.decode("foxglove.SceneEntity", entity.encode())
+    size = decoded["cylinders"][0]["size"]
     # Foxglove's cylinder axis (its z) is the body's y: body scale (2, 3, 5) -> (2, 5, 3)
     assert (size["x"], size["y"], size["z"]) == (2.0, 5.0, 6.0)
-    assert np.isfinite(list(size.values())).all()

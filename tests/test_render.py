@@ -11,7 +11,7 @@ from test_camera import pinhole
 from vrsim_cli.model.model import compile_model
 from vrsim_cli.model.state import make_state
 from vrsim_cli.render import RenderUnavailable, default_camera, open_renderer, time_label
-from vrsim_cli.render.font import GLYPH_H, text_mask
+from vrsim_cli.render.label import label_box
 from vrsim_cli.scene.spec import parse_scene
 
 W, H = 320, 240
@@ -183,26 +183,31 @@ def test_particles_appear_from_their_emission_on():
 
 @pytest.mark.osmesa
 def test_time_overlay_is_drawn_top_left_and_only_there():
-    model, plain = render(scene("{name: b, type: static, shape: {type: sphere, radius: 0.2}, "
-                                "position: [1, 1.6, 0]}"))
-    _, labelled = render(scene("{name: b, type: static, shape: {type: sphere, radius: 0.2}, "
-                               "position: [1, 1.6, 0]}"), overlay=time_label(12.5))
+    body = ("{name: b, type: static, shape: {type: sphere, radius: 0.2}, "
+            "position: [1, 1.6, 0]}")
+    model, plain = render(scene(body))
+    _, labelled = render(scene(body), overlay=time_label(12.5))
     assert time_label(12.5) == "t = 12.500 s"
     changed_rows, changed_cols = np.nonzero((plain != labelled).any(axis=2))
     scale = H // 240
-    mask = text_mask("t = 12.500 s", scale)
-    # Changes stay inside the text's box (its padding is 2 * scale on each side).
-    assert changed_rows.max() < 4 * scale + mask.shape[0] + 2 * scale
-    assert changed_cols.max() < 4 * scale + mask.shape[1] + 2 * scale
-    # The glyph pixels are dark text; the glyph for '1' occupies its column of pixels.
-    glyphs = labelled[4 * scale:4 * scale + GLYPH_H * scale, 4 * scale:4 * scale + mask.shape[1]]
-    assert (glyphs[mask] < 60).all()
-    assert (glyphs[~mask] > 150).all()
+    left, top, right, bottom = label_box("t = 12.500 s", 4 * scale, 4 * scale, scale)
+    # Changes stay inside the text's box, which starts near the top-left corner ...
+    assert changed_rows.min() >= top and changed_rows.max() < bottom
+    assert changed_cols.min() >= left and changed_cols.max() < right
+    assert 0 <= left <= 4 * scale and 0 <= top <= 8 * scale and right < W // 2
+    # ... and holds dark text on a light box: text pixels and box pixels both
+    box = labelled[top:bottom, left:right].astype(int).sum(axis=2)
+    assert (box < 3 * 80).sum() > 50 and (box > 3 * 200).sum() > 0.5 * box.size
 
 
-def test_unknown_overlay_characters_are_refused():
-    with pytest.raises(KeyError):
-        text_mask("t = 1 h")
+def test_any_text_can_be_drawn():
+    """Pillow's font has the letters the old 5x7 bitmap font lacked."""
+    from vrsim_cli.render.label import draw_label
+
+    image = np.full((40, 200, 3), 128, dtype=np.uint8)
+    out = draw_label(image, "t = 1 h, Ω", 4, 4, 1)
+    assert out.shape == image.shape and (out != image).any()
+
 
 
 @pytest.mark.osmesa

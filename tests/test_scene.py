@@ -198,8 +198,17 @@ def test_non_string_key(write_scene):
 
 
 def test_yaml_syntax_error_is_located(write_scene):
+    """An unclosed bracket is reported where it opens (line 2), not where PyYAML noticed it
+    (line 3), with that place in the message."""
     out = problems(write_scene, "vrsim: 1\nduration: [1, 2\nbodies: []\n")
-    assert len(out) == 1 and out[0].startswith("F:3:7: (document): YAML: ")
+    assert out == ["F:2:11: (document): YAML: a flow sequence that starts here is not closed "
+                   "(expected ',' or ']', but got ':', at line 3, column 7) (close the bracket "
+                   "or quote)"]
+    out = problems(write_scene, 'vrsim: 1\nname: "abc\nduration: 2\n')
+    assert len(out) == 1 and out[0].startswith("F:2:7: (document): YAML: a quoted scalar that "
+                                               "starts here is not closed")
+    out = problems(write_scene, "vrsim: 1\nduration: 1: 2\n")  # not a bracket: where it is
+    assert out == ["F:2:12: (document): YAML: mapping values are not allowed here"]
 
 
 def test_empty_file(write_scene):
@@ -339,10 +348,20 @@ def test_force_window_and_static_velocity(write_scene):
                    "kinematic for a body that moves at a given velocity)"]
 
 
-def test_output_path_must_stay_in_the_scene_folder(write_scene):
+def test_output_path_must_stay_in_the_current_folder(write_scene):
     out = problems(write_scene, "vrsim: 1\nduration: 1\noutput: {file: ../../evil.csv}\n")
-    assert out == ["F:3:16: output.file: path '../../evil.csv' leaves the scene file's folder "
-                   "(give a path inside the scene's folder, or use -o on the command line)"]
+    assert out == ["F:3:16: output.file: path '../../evil.csv' leaves the current folder "
+                   "(a scene writes only below the folder vrsim runs in; to write elsewhere "
+                   "give the path on the command line (-o FILE, --frames DIR))"]
+
+
+def test_a_mesh_outside_the_scene_folder_gets_a_hint_that_applies(write_scene):
+    """Not the -o hint of outputs: a mesh is read, and -o changes nothing about it."""
+    out = problems(write_scene, "vrsim: 1\nduration: 1\nbodies: [{name: m, type: static, "
+                                "shape: {type: mesh, file: ../m.obj}}]\n")
+    assert out == ["F:3:60: bodies[0].shape.file: path '../m.obj' leaves the scene file's "
+                   "folder (a scene reads only files in its own folder or below it; copy or "
+                   "link the file there)"]
 
 
 def test_output_rate_must_fit_the_step(write_scene):

@@ -58,3 +58,52 @@ def test_missing_imageio_is_reported_before_the_run(invoke, write_scene, tmp_pat
     assert "--video needs imageio, which is not installed: pip install 'vrsim-cli[video]'" \
         in result.stderr
     assert not out.exists() and not (tmp_path / "f").exists()
+
+
+def test_a_100_hz_gif_keeps_one_image_in_two_with_20_ms_delays(invoke, write_scene, tmp_path):
+    """Browsers play GIF delays under 20 ms as 100 ms: at 100 Hz the GIF keeps every second
+    image, 20 ms each, so it plays in real time (and says so)."""
+    from PIL import Image
+
+    scene = write_scene(STATIC.replace("frame_rate: 20", "frame_rate: 100")
+                        .replace("every: 3, ", ""))
+    video = tmp_path / "run.gif"
+    result = invoke("run", scene, "--frames", tmp_path / "f", "--video", video)
+    assert result.exit_code == 0, result.output
+    assert "the GIF keeps one image in 2" in result.stdout
+    gif = Image.open(video)
+    delays = []
+    for i in range(gif.n_frames):
+        gif.seek(i)
+        delays.append(gif.info["duration"])
+    assert len(delays) == 26  # images 0, 2, ..., 50 of the 51 frames (0.5 s at 100 Hz)
+    assert set(delays) == {20}
+    assert len(list((tmp_path / "f").iterdir())) == 51  # the folder keeps every image
+
+
+@pytest.mark.parametrize("fps", [15.0, 30.0, 45.0, 60.0, 100.0, 240.0])
+def test_gif_delays_are_at_least_20_ms_and_keep_real_time(tmp_path, fps):
+    from PIL import Image
+
+    from vrsim_cli.writers.video import VideoWriter
+
+    path = tmp_path / "v.gif"
+    writer = VideoWriter(path, fps=fps)
+    images = 90
+    rng = np.random.default_rng(0)
+    sizes = []
+    for _ in range(images):
+        writer.append(rng.integers(0, 256, (12, 16, 3), dtype=np.uint8))
+        sizes.append(writer.tmp_path.stat().st_size)
+    assert sizes[-1] > sizes[len(sizes) // 2] > 0  # streamed to disk as it goes
+    writer.close()
+    gif = Image.open(path)
+    delays = []
+    for i in range(gif.n_frames):
+        gif.seek(i)
+        delays.append(gif.info["duration"])
+    assert min(delays) >= 20
+    # the kept images span the same time as all images: within one centisecond
+    kept = -(-images // writer.keep_every)
+    assert len(delays) == kept
+    assert abs(sum(delays) - 1e3 * kept * writer.keep_every / fps) <= 10

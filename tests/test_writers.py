@@ -4,11 +4,12 @@ TUM files, atomic replacement."""
 from __future__ import annotations
 
 import csv
-import json
 
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+
+import mcap_messages
 
 from vrsim_cli.errors import OutputError
 from vrsim_cli.loop import run
@@ -61,53 +62,43 @@ def test_csv_has_exactly_the_documented_columns_and_exact_values(write_scene, tm
     assert crate_q == pytest.approx([np.sqrt(0.5), 0, np.sqrt(0.5), 0])
 
 
-def _reject(constant):
-    raise AssertionError(f"non-JSON number {constant} in a message")
-
-
-def test_mcap_reads_back_with_foxglove_schemas(write_scene, tmp_path):
+def test_mcap_reads_back_with_the_foxglove_sdk_schemas(write_scene, tmp_path):
     model, result = run_to(write_scene, tmp_path, "out.mcap", "mcap")
+    messages, schemas = mcap_messages.read(tmp_path / "out.mcap")
+    assert schemas == {"/tf": "foxglove.FrameTransforms", "/scene": "foxglove.SceneUpdate",
+                       "/vrsim/state": "vrsim.State"}
     with open(tmp_path / "out.mcap", "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        schemas = {s.name: s for s in summary.schemas.values()}
-        topics = {c.topic: schemas_name for c in summary.channels.values()
-                  for schemas_name in [summary.schemas[c.schema_id].name]}
-        assert topics == {"/tf": "foxglove.FrameTransforms", "/scene": "foxglove.SceneUpdate",
-                          "/vrsim/state": "vrsim.State"}
-        assert all(s.encoding == "jsonschema" for s in schemas.values())
-        assert json.loads(schemas["foxglove.FrameTransforms"].data)["title"] == \
-            "foxglove.FrameTransforms"
-        assert {c.message_encoding for c in summary.channels.values()} == {"json"}
-        assert all(ci.compression == "zstd" for ci in summary.chunk_indexes)
-        messages = {}
-        for schema, channel, message in reader.iter_messages():
-            # strict JSON: NaN or Infinity would make the file unreadable for Foxglove
-            decoded = json.loads(message.data, parse_constant=_reject)
-            messages.setdefault(channel.topic, []).append((message.log_time, decoded))
+        assert all(ci.compression == "lz4" for ci in summary.chunk_indexes)
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
     assert len(messages["/tf"]) == len(messages["/vrsim/state"]) == 11
     assert len(messages["/scene"]) == 1
     t_ns, last_tf = messages["/tf"][-1]
     assert t_ns == 500_000_000
-    ball = last_tf["transforms"][0]
-    assert ball["parent_frame_id"] == "world" and ball["child_frame_id"] == "ball"
+    frames = {tf["child_frame_id"]: tf for tf in last_tf["transforms"]}
+    # world is z-up; the y-up scene hangs under it turned +90 degrees about x
+    root = frames["scene"]
+    assert root["parent_frame_id"] == "world"
+    assert [root["rotation"][k] for k in "wxyz"] == [np.sqrt(0.5), np.sqrt(0.5), 0.0, 0.0]
+    ball = frames["ball"]
+    assert ball["parent_frame_id"] == "scene"
     assert [ball["translation"][k] for k in "xyz"] == result.state.body_pos[0].tolist()
-    assert ball["timestamp"] == {"sec": 0, "nsec": 500_000_000}
+    assert mcap_messages.seconds(ball["timestamp"]) == 0.5
     entities = {e["id"]: e for e in messages["/scene"][0][1]["entities"]}
     assert entities["ball"]["spheres"][0]["size"] == {"x": 0.2, "y": 0.2, "z": 0.2}
     assert entities["ball"]["spheres"][0]["color"] == {"r": 1.0, "g": 0.0, "b": 0.0, "a": 1.0}
     assert entities["crate"]["cubes"][0]["size"] == {"x": 1.0, "y": 2.0, "z": 3.0}
     assert len(entities["pole"]["cylinders"]) == 1 and len(entities["pole"]["spheres"]) == 2
-    assert entities["floor"]["frame_id"] == "world"
+    assert entities["floor"]["frame_id"] == "scene"
     assert entities["floor"]["cubes"][0]["pose"]["position"]["y"] == -1.0
     assert entities["ball"]["frame_locked"] is True
     state = messages["/vrsim/state"][-1][1]
-    assert state["t"] == result.state.t and state["step"] == 50
-    assert state["entities"][0]["name"] == "ball"
-    assert state["entities"][0]["vx"] == 1.0
+    assert state["t"] == result.state.t and int(state["step"]) == 50
+    assert state["entity"] == list(model.body_name)
+    assert state["velocity"][0] == 1.0
     assert "name: writers" in metadata["vrsim"]["scene"]
-    assert metadata["vrsim"]["integrator"] == "rk4"
+    assert metadata["vrsim"]["integrator"] == "rk4" and metadata["vrsim"]["up"] == "y"
 
 
 def test_tum_folder_has_one_file_per_entity(write_scene, tmp_path):

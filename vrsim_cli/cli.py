@@ -190,13 +190,21 @@ def _output_target(output: str | None, fmt: str | None):
 @click.option("--frames", "frames_dir", type=click.Path(file_okay=False), help="Render PNG "
               "frames into this folder (off-screen, OSMesa). Overrides output.frames.dir.")
 @click.option("--video", type=click.Path(dir_okay=False), help="Also make a video of the "
-              "frames: .mp4 or .gif (needs frames; pip install 'vrsim-cli[video]').")
+              "frames: .mp4 (pip install 'vrsim-cli[video]') or .gif (needs frames).")
 @click.option("--tolerance", type=click.FloatRange(0, 1, min_open=True), help="Error "
               "tolerance per step of --integrator dopri5 (overrides the scene).")
+@click.option("--live", is_flag=True, help="Serve the run to Foxglove over its WebSocket "
+              "protocol at real-time pace (ws://localhost:8765); waits for a client first. "
+              "With -o the file is written too.")
+@click.option("--live-port", type=click.IntRange(0, 65535), default=8765, show_default=True,
+              help="Port of --live on 127.0.0.1 (0: any free port).")
+@click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary of "
+              "the run (and nothing else on stdout).")
 @_reports_errors
 def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet,
-        frames_dir, video, tolerance):
+        frames_dir, video, tolerance, live, live_port, as_json):
     """Run SCENE_FILE and write its trajectory."""
+    from vrsim_cli.loop import prepare as prepare_kernels
     from vrsim_cli.loop import run as run_loop
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.model.state import make_state
@@ -223,35 +231,62 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         say(f"note: dt = {model.dt_requested:g} s does not divide the frame interval "
             f"1/{model.frame_rate:g} s; using dt = {model.dt:.6g} s "
             f"({model.steps_per_frame} steps per frame)", err=True)
-    progress = _Progress(model, enabled=not quiet)
+    if as_json and to_stdout:
+        raise click.UsageError("--json prints the summary on standard output; -o - writes "
+                               "the trajectory there: give -o a file")
+    prepare_kernels(model, say)  # compiled once after an install; before any output
+    server = None
+    if live:
+        from vrsim_cli.writers.live import LiveServer
+        server = LiveServer(model.name)
+    progress = _Progress(model, enabled=not quiet and not live and not as_json)
     state = make_state(model)
     failure = None
     writer = frames = None
-    closed = []  # what was finalised already (and must not be aborted)
+    closed = []  # what was finalised or discarded already
 
     def abort() -> None:
+        """Discard what is not finalised yet (any previous output stays)."""
         progress.clear()
-        if writer is not None and writer not in closed:
-            writer.abort()
-        if frames is not None and frames not in closed:
-            frames.abort()
+        for sink in (writer, frames, server):
+            if sink is not None and sink not in closed:
+                closed.append(sink)
+                if sink is server:
+                    sink.close(linger=False)
+                else:
+                    sink.abort()
 
     with _Signals() as signals:  # from before the first output file is opened
+        stop = lambda: signals.received is not None  # noqa: E731
         try:
             try:
                 # before simulating: a missing OSMesa fails at once
                 frames = _open_frames(model, video)
-                writer = open_writer(model, model.output.path, model.output.format) \
-                    if model.output.path is not None else None
-                result = run_loop(model, state, writer, realtime=realtime,
-                                  should_stop=lambda: signals.received is not None,
-                                  on_frame=progress, render=frames)
+                writer = open_writer(model, model.output.path, model.output.format,
+                                     live=server)
+                if server is not None:
+                    server.start(live_port)  # after the writer made the channels
+                    click.echo(f"live: serving {printable(model.name)} on {server.url} "
+                               f"(Foxglove: Open connection, Foxglove WebSocket); waiting for "
+                               f"a client, Ctrl-C to stop", err=True)
+                    if not server.wait_for_client(stop):  # no client came: nothing to keep
+                        abort()
+                        click.echo("interrupted before a client connected; nothing written",
+                                   err=True)
+                        sys.exit(128 + signals.received)
+                result = run_loop(model, state, writer, realtime=realtime or live,
+                                  should_stop=stop, on_frame=progress, render=frames)
             except SimulationError as exc:
                 failure = exc  # finalise the output up to the last good state, then report
             finally:
                 progress.clear()
+            if server is not None:
+                server.close(linger=failure is None)
+                closed.append(server)
             # still under the handlers: a signal now cannot cut the output off
             if frames is not None:
+                if len(frames.states) > 1 and not as_json:  # drawn now: the camera needs the run
+                    say(f"rendering {len(frames.states)} frames ...", err=True)
                 frames.close()
                 closed.append(frames)
             if writer is not None:
@@ -265,20 +300,31 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         except BaseException:  # an output error, or a bug: keep any previous file
             abort()
             raise
+    from vrsim_cli.text import plural
+    from vrsim_cli.tools.run_report import failure_summary, format_run, run_summary
+
     if failure is not None:
         kept = f"; output up to the last good state kept in {_shown_path(model)}" \
-            if writer is not None else ""
+            if model.output.path is not None else ""
         click.echo(f"error: {printable(str(failure))}{kept}", err=True)  # names a body
+        if as_json:
+            click.echo(json.dumps(failure_summary(model, failure), indent=2))
         sys.exit(failure.exit_code)
-    _summary(model, result, say, profile, realtime)
-    if frames is not None:
-        say(f"frames: {frames.images} images of {model.frames.width}x{model.frames.height} px "
-            f"-> {printable(str(model.frames.dir))}" + (f", video {printable(video)}"
-                                                       if video else ""))
+    interrupted = signal.Signals(signals.received).name if signals.received else None
+    report = run_summary(model, result, frames=frames, interrupted_by=interrupted,
+                         live_url=server.url if server is not None else None)
+    if as_json:
+        click.echo(json.dumps(report, indent=2))
+    else:
+        for line in format_run(report, profile, realtime or live):
+            say(line)
+    if frames is not None and not as_json:
+        say(f"frames: {plural(frames.images, 'image')} of {model.frames.width}x"
+            f"{model.frames.height} px -> {printable(str(model.frames.dir))}"
+            + (f", video {printable(video)}" if video else "") + _subsampled(frames))
     if signals.received is not None:  # during the loop, or while the output was finalised
-        name = signal.Signals(signals.received).name
-        click.echo(f"interrupted by {name} at t = {result.state.t:.6g} s; output finalised",
-                   err=True)
+        click.echo(f"interrupted by {interrupted} at t = {result.state.t:.6g} s; output "
+                   f"finalised", err=True)
         sys.exit(128 + signals.received)
 
 
@@ -325,25 +371,11 @@ def _open_frames(model, video: str | None):
     return FramesWriter(model, spec, renderer, label=time_label, video=sink)
 
 
-def _summary(model, result, say, profile: bool, realtime: bool) -> None:
-    from vrsim_cli.model.state import state_hash
-
-    state = result.state
-    factor = state.t / result.wall_s if result.wall_s > 0 else float("inf")
-    where = f" -> {_shown_path(model)}" if model.output.path is not None else \
-        " (no output: use -o FILE)"
-    say(f"{printable(model.name)}: simulated {state.t:.6g} s in {state.step} steps of {model.dt:.6g} s, "
-        f"wall {result.wall_s:.3f} s, {factor:.1f}x real time{where}")
-    say(f"state sha256:{state_hash(state)}")
-    if realtime:
-        say(f"realtime: missed {result.missed_deadlines} of {result.frames} frame deadlines "
-            f"(worst {1e3 * result.worst_late_s:.2f} ms late)")
-    if profile:
-        total = sum(result.profile.values()) or 1.0
-        say(f"{'stage':<10} {'total s':>9} {'us/step':>9} {'share':>6}")
-        for stage, seconds in result.profile.items():
-            per = 1e6 * seconds / max(state.step, 1)
-            say(f"{stage:<10} {seconds:>9.4f} {per:>9.2f} {100 * seconds / total:>5.1f}%")
+def _subsampled(frames) -> str:
+    """A note when the video keeps fewer images than the frames folder (GIF delays)."""
+    video = getattr(frames, "video", None)
+    keep = getattr(video, "keep_every", 1)
+    return f" (the GIF keeps one image in {keep}: {video.note})" if keep > 1 else ""
 
 
 # ----------------------------------------------------------------------------- validate
@@ -356,6 +388,7 @@ def validate(scene_files, quiet):
     """Check scene files; report every problem with FILE:LINE:COL."""
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.scene.spec import load_scene
+    from vrsim_cli.text import plural
 
     failed = False
     for file in scene_files:
@@ -368,9 +401,10 @@ def validate(scene_files, quiet):
             continue
         if not quiet:
             impacts = f", {model.response.impacts} impacts" if model.response else ""
-            click.echo(f"{printable(file)}: ok ({model.n_body} bodies, {model.duration:g} s in "
-                       f"{model.n_steps} steps of {model.dt:.6g} s, {model.integrator}"
-                       f"{impacts})")
+            click.echo(f"{printable(file)}: ok ({plural(model.n_body, 'body')}, "
+                       f"{model.duration:g} s in {plural(model.n_steps, 'step')} of "
+                       f"{model.dt:.6g} s, "
+                       f"{model.integrator}{impacts})")
             for note in model.notes:
                 click.echo(f"note: {printable(file)}: {printable(note)}", err=True)
     sys.exit(EXIT_INPUT if failed else 0)
@@ -415,43 +449,15 @@ def schema():
 @_reports_errors
 def info(trajectory_file, as_json):
     """Summarise a trajectory file: entities, duration, samples, channels."""
-    from vrsim_cli.tools.trajectory import read_trajectory
+    from vrsim_cli.tools.trajectory import format_summary, read_trajectory, summary
 
-    traj = read_trajectory(trajectory_file)
-    times = traj.times
-    summary = {
-        "file": trajectory_file, "format": traj.format,
-        "entities": list(traj.tracks),
-        "samples": int(len(times)),
-        "start_s": float(times[0]) if len(times) else None,
-        "end_s": float(times[-1]) if len(times) else None,
-        "duration_s": float(times[-1] - times[0]) if len(times) else 0.0,
-        "channels": [{"topic": t, "schema": s, "messages": n} for t, s, n in traj.channels],
-        "vrsim": {k: v for k, v in traj.metadata.get("vrsim", {}).items() if k != "scene"},
-    }
+    info_ = summary(read_trajectory(trajectory_file), trajectory_file)
     if as_json:
-        click.echo(json.dumps(summary, indent=2))
+        click.echo(json.dumps(info_, indent=2))
         return
-    # Entity names, topics, schema names and metadata come from the file: escaped, so a
-    # hostile file cannot move the cursor, retitle the terminal or overwrite a line (\r).
-    click.echo(f"{printable(trajectory_file)}: {traj.format}, {len(traj.tracks)} entities, "
-               f"{summary['samples']} samples")
-    if len(times):
-        click.echo(f"time: {summary['start_s']:.6g} .. {summary['end_s']:.6g} s "
-                   f"(duration {summary['duration_s']:.6g} s)")
-    names = list(traj.tracks)
-    shown = ", ".join(names[:10]) + (f", ... ({len(names) - 10} more)" if len(names) > 10 else "")
-    click.echo(printable(f"entities: {shown}"))
-    if traj.channels:
-        click.echo("channels:")
-        for ch in summary["channels"]:
-            click.echo(printable(f"  {ch['topic']:<16} {ch['schema']:<26} {ch['messages']} "
-                                 f"messages"))
-    made = summary["vrsim"]
-    if made:
-        click.echo(printable(f"made by vrsim {made.get('version', '?')} from "
-                             f"{made.get('scene_file', '?')} (dt {made.get('dt', '?')} s, "
-                             f"{made.get('integrator', '?')})"))
+    # names, topics and metadata come from the file: format_summary escapes them
+    for line in format_summary(info_):
+        click.echo(line)
 
 
 # ----------------------------------------------------------------------- collision-proxies
@@ -598,6 +604,106 @@ def bench(quick, peers, names, repeats, folder):
                   " (no plots: pip install 'vrsim-cli[bench]' for matplotlib)"))
 
 
+# ----------------------------------------------------------------------------- sweep
+
+
+def _executor(jobs, ray_address):
+    """The executor of --jobs / --ray (tools/executors.py)."""
+    from vrsim_cli.tools.executors import make_executor
+
+    return make_executor(jobs, ray_address)
+
+
+def _ray_address(ctx, param, value):
+    """--ray [ADDRESS] takes the next word when it is not an option: refuse a scene file
+    there (`vrsim sweep --ray scene.yaml`) with the fix, not a missing-argument error."""
+    if value and Path(value).suffix in (".yaml", ".yml") and Path(value).exists():
+        raise click.BadParameter(f"'{value}' was taken as the cluster address: put --ray "
+                                 f"after the scene files, or write --ray=ADDRESS")
+    return value
+
+
+def _executor_options(command):
+    """--jobs N and --ray [ADDRESS], shared by sweep and regress."""
+    command = click.option(
+        "--ray", "ray_address", is_flag=False, flag_value="", default=None,
+        metavar="[ADDRESS]", callback=_ray_address, help="Run on Ray: a local instance, or "
+        "the cluster at ADDRESS (pip install 'vrsim-cli[ray]').")(command)
+    return click.option("--jobs", type=click.IntRange(min=1), help="Worker processes "
+                        "(default: the machine's cores; 1: in this process).")(command)
+
+
+@cli.command()
+@click.argument("scene_files", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--set", "settings", multiple=True, metavar="KEY=V1,V2,...", help="Values of "
+              "a scene key to sweep (repeatable: the runs are the cartesian product). KEY "
+              "is a path: dt, integrator, tolerance, bodies.ball.material.restitution "
+              "(list items by name or [index]). Values are YAML; lin:A:B:N and log:A:B:N "
+              "give N spaced values.")
+@click.option("--reference", "reference", multiple=True, metavar="'KEY=V ...'|FILE",
+              help="Measure each run's error against the run with these values on top "
+                   "(e.g. 'integrator=dopri5 tolerance=1e-12'), or against a trajectory "
+                   "file.")
+@click.option("-o", "--output", "folder", type=click.Path(file_okay=False), default="sweep",
+              show_default=True, help="Folder for runs.csv, entities.csv, sweep.md, plots.")
+@_executor_options
+@click.option("--resume", is_flag=True, help="Continue the sweep in the output folder, "
+              "skipping the runs its table already holds.")
+@click.option("-q", "--quiet", is_flag=True, help="Print only failures and the summary.")
+@_reports_errors
+def sweep(scene_files, settings, reference, folder, jobs, ray_address, resume, quiet):
+    """Run variants of scenes and measure speed against error (docs/sweep.md).
+
+    Exit 0 when every run finished, 1 when a run failed (the others still run), 2 on
+    bad input (found before anything runs).
+    """
+    from vrsim_cli.tools import sweep as sweep_module
+    from vrsim_cli.tools.executors import describe
+
+    parsed = [sweep_module.parse_setting(text) for text in settings]
+    pairs, ref_file = sweep_module.parse_reference(reference)
+    plan = sweep_module.plan_sweep(list(scene_files), parsed, pairs, ref_file)
+    for note in plan.notes:
+        click.echo(f"note: {note}", err=True)
+    executor = _executor(jobs, ray_address)
+    total = len(plan.runs) + len(plan.references)
+    count = [0]
+
+    def on_run(run, outcome):
+        count[0] += 1
+        line = sweep_module.progress_line(run, outcome, count[0], total)
+        if outcome is None or outcome.status != "ok":
+            click.echo(f"error: {line}", err=True)
+        elif not quiet:
+            click.echo(line)
+
+    out = Path(folder)
+    with _Signals() as signals:
+        try:
+            result = sweep_module.run_sweep(
+                plan, out, executor, resume=resume, on_run=on_run,
+                should_stop=lambda: signals.received is not None)
+        finally:
+            executor.close()
+        written = sweep_module.write_report(plan, out, describe(executor))
+    skipped = f", {result.skipped} already in the table" if result.skipped else ""
+    runs = f"{result.done} run" + ("" if result.done == 1 else "s")
+    click.echo(f"sweep: {runs} in {result.wall_s:.3g} s {describe(executor)}"
+               f"{skipped}; {len(result.failed)} failed")
+    for line in sweep_module.fronts_summary(plan, out):
+        click.echo(line)
+    plots = len(written) - 1
+    click.echo(f"wrote {out / sweep_module.RUNS_CSV}, {out / sweep_module.ENTITIES_CSV}, "
+               f"{written[0]}" + (f" and {plots} plot(s)" if plots else
+                                  " (no plot: no errors, or pip install matplotlib)"))
+    if signals.received is not None:
+        name = signal.Signals(signals.received).name
+        click.echo(f"interrupted by {name}: the finished runs are in the table; rerun with "
+                   f"--resume to do the rest", err=True)
+        sys.exit(128 + signals.received)
+    sys.exit(1 if result.failed else 0)
+
+
 # ----------------------------------------------------------------------------- compare
 
 
@@ -663,6 +769,139 @@ def compare(a, b, atol, rtol, angle_tol, overrides, allow_missing_entities, show
         for line in format_report(report, show_all=show_all):
             click.echo(printable(line))  # entity names come from the files
     sys.exit(0 if report.ok else 1)
+
+
+# ----------------------------------------------------------------------------- regress
+
+
+@cli.command()
+@click.argument("folder", type=click.Path(file_okay=False))
+@click.argument("names", nargs=-1)
+@click.option("--golden", "golden", type=click.Path(file_okay=False), required=True,
+              help="Folder of the goldens NAME.csv.gz (and hashes.json, tolerances.yaml).")
+@click.option("--update", is_flag=True, help="Rewrite the goldens and this platform's "
+              "state-hash pins from this run (review and commit them).")
+@click.option("--junit", "junit", type=click.Path(dir_okay=False), help="Also write the "
+              "result as JUnit XML (one testcase per scene).")
+@_executor_options
+@click.option("--atol", type=_TOL, help="Default absolute tolerance (m, m/s, rad/s), "
+              "replacing tolerances.yaml's default atol.")
+@click.option("--rtol", type=_TOL, help="Default relative tolerance (likewise).")
+@click.option("--angle-tol", type=_TOL, help="Default orientation tolerance in rad "
+              "(likewise).")
+@click.option("--tol", "overrides", type=_ToleranceOverride(), multiple=True,
+              help="[SCENE:]PATTERN=ATOL[,ANGLE_TOL]: per-entity tolerance (shell-style "
+                   "patterns), for the scenes matching SCENE (default all); the last match "
+                   "wins, after tolerances.yaml's.")
+@click.option("--tolerances", "tolerances_file", type=click.Path(dir_okay=False),
+              help="Tolerances file (default: GOLDEN/tolerances.yaml when present).")
+@click.option("--no-pins", is_flag=True, help="Do not check the state-hash pins "
+              "(hashes.json), only the trajectories.")
+@click.option("--samples", type=click.IntRange(min=2), default=21, show_default=True,
+              help="--update: sample times kept per golden.")
+@click.option("-q", "--quiet", is_flag=True, help="Print only failures and the summary.")
+@_reports_errors
+def regress(folder, names, golden, update, junit, jobs, ray_address, atol, rtol, angle_tol,
+            overrides, tolerances_file, no_pins, samples, quiet):
+    """Run every scene in FOLDER (or the NAMES given) and compare it with its golden.
+
+    Exit 0 when every scene matches, 1 when one does not (or its run fails), 2 on bad
+    input. Tolerances and goldens: docs/regression.md.
+    """
+    from vrsim_cli.tools import regress as regress_module
+    from vrsim_cli.tools.executors import describe
+
+    folder_path, golden_path = Path(folder), Path(golden)
+    if junit and not Path(junit).resolve().parent.is_dir():
+        raise click.BadParameter(f"folder '{Path(junit).parent}' does not exist",
+                                 param_hint="--junit")
+    file = Path(tolerances_file) if tolerances_file else golden_path / regress_module.TOLERANCES
+    if tolerances_file and not file.exists():
+        raise click.BadParameter(f"no such file '{tolerances_file}'", param_hint="--tolerances")
+    tolerances = regress_module.tolerances_from_options(file, atol, rtol, angle_tol, overrides)
+    plan = regress_module.plan_regress(folder_path, golden_path, names, update=update,
+                                       tolerances=tolerances, check_pins=not no_pins,
+                                       samples=samples)
+    for note in plan.notes:
+        click.echo(f"note: {note}", err=True)
+    command = f"vrsim regress {folder} --golden {golden} --update"
+
+    def on_case(case):
+        if update:
+            return
+        if case.status == "passed":
+            if not quiet:
+                click.echo(f"{case.name}: ok")
+            return
+        click.echo(f"{case.name}: {case.status.upper()}: " + "; ".join(case.reasons))
+        for line in case.lines:
+            click.echo(f"  {line}")
+
+    executor = _executor(jobs, ray_address)
+    with _Signals() as signals:
+        try:
+            result = regress_module.run_regress(
+                plan, executor, on_case=on_case, update_command=command,
+                should_stop=lambda: signals.received is not None)
+        finally:
+            executor.close()
+        if signals.received is not None:
+            name = signal.Signals(signals.received).name
+            click.echo(f"interrupted by {name}: nothing written", err=True)
+            sys.exit(128 + signals.received)
+        if update:
+            not_written = regress_module.update_goldens(result, say=click.echo)
+        if junit:
+            regress_module.write_junit(result, Path(junit))
+    counts = result.counts()
+    passed = counts["tests"] - counts["failures"] - counts["errors"]
+    if update:
+        click.echo(f"regress --update: {len(result.cases) - len(not_written)} goldens "
+                   f"written or unchanged in {golden}, {len(not_written)} not written "
+                   f"({result.wall_s:.3g} s {describe(executor)})")
+        sys.exit(1 if not_written else 0)
+    click.echo(f"regress: {counts['tests']} scenes, {passed} passed, {counts['failures']} "
+               f"failed, {counts['errors']} errors ({result.wall_s:.3g} s "
+               f"{describe(executor)})" + (f"; JUnit XML in {junit}" if junit else ""))
+    sys.exit(0 if result.ok else 1)
+
+
+# ----------------------------------------------------------------------------- plot
+
+
+@cli.command()
+@click.argument("trajectory_file", type=click.Path())
+@click.option("-o", "--output", type=click.Path(dir_okay=False), help="PNG to write "
+              "(default: FILE's name with .png, in the current folder).")
+@click.option("--entity", "patterns", multiple=True, help="Plot the entities matching this "
+              "shell-style pattern (repeatable; default: all, at most 10).")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False), help="The scene of "
+              "the run, for the masses behind the energy (vrsim's MCAP files carry theirs).")
+@_reports_errors
+def plot(trajectory_file, output, patterns, scene_file):
+    """Plot position, speed and energy over time per entity (PNG; needs matplotlib:
+    pip install 'vrsim-cli[plot]')."""
+    from vrsim_cli.tools.plot import draw, model_of, series
+    from vrsim_cli.tools.trajectory import read_trajectory
+
+    out = Path(output) if output else Path(Path(trajectory_file).name).with_suffix(".png")
+    if out.suffix.lower() != ".png":
+        raise click.UsageError(f"'{out}': vrsim plot writes PNG; use a .png name")
+    if not out.parent.is_dir():
+        raise click.UsageError(f"folder '{out.parent}' does not exist")
+    traj = read_trajectory(trajectory_file)
+    if not traj.tracks:
+        raise InputError(f"{trajectory_file}: holds no trajectory to plot")
+    model = model_of(traj, scene_file)
+    data = series(traj, model, patterns)
+    note = None
+    if model is None:
+        note = "energy needs the masses: give the scene with --scene"
+    elif not any(s["energy"] is not None for s in data["entities"].values()):
+        note = "no body with a finite mass and velocities among these entities"
+    draw(data, f"{Path(trajectory_file).name}", out, note)
+    click.echo(f"wrote {out}: position, speed and energy of "
+               f"{', '.join(data['entities'])}")
 
 
 def main() -> None:

@@ -92,16 +92,44 @@ def _check_translation(model: Model, state: State) -> None:
     raise SimulationError(f"{what}: {why}", body=model.body_name[body], t=state.t)
 
 
+def prepare(model: Model, say: Callable[..., None] | None = None) -> None:
+    """Load the compiled kernels the run of `model` needs (compiling them on the first run
+    after an install, which `say` then reports with the time it took), before any output
+    is opened: a run's first step pays nothing for them."""
+    if model.n_body == 0:
+        return
+    from vrsim_cli.kernels import jit
+
+    # the process total before and after: only what this run compiled is reported (an
+    # API user or a test running many scenes in one process hears it once)
+    before = jit.compile_report()
+    dynamics.prepare(model)
+    seconds = jit.compile_report() - before
+    if seconds > 0.0 and say is not None:
+        say(f"vrsim: compiled in {seconds:.1f} s (kept for the next runs)", err=True)
+
+
 def run(model: Model, state: State, writer=None, *, realtime: bool = False,
         should_stop: Callable[[], bool] | None = None,
         on_frame: Callable[[State], None] | None = None,
-        render: Callable[[State], None] | None = None) -> RunResult:
+        render: Callable[[State], None] | None = None,
+        resume: bool = False) -> RunResult:
     """Run `model` from `state` to the end (or until `should_stop()` is true at a frame).
 
     `writer` receives samples; it is not closed here. On a blow-up the last good state is
     written (if it was not yet) before SimulationError propagates. `render` (stage 3, e.g.
     a `writers.frames.FramesWriter`) is called with the initial state and after every
     frame; it picks the frames it draws, so this module never imports OpenGL.
+
+    Between two points where Python has work to do (an output sample, a frame with
+    sensors, rendering, pacing or callbacks) the dynamics runs as one compiled call of
+    many steps (`dynamics.run`, like `mj_step(nstep)`). Stages still written in Python
+    per step (the scene graph of animated scenes, collision) make the loop step by step.
+
+    `resume`: `state` is where an earlier run of this model stopped (at a frame, through
+    `should_stop`); the set-up of a run's first state (kinematic poses at t, attaching the
+    observer to its body) is skipped, so running in pieces gives the states of one run,
+    bit for bit (the Python API's Simulation.step relies on it).
     """
     clock = time.perf_counter
     profile = {"sensors": 0.0, "navigation": 0.0, "dynamics": 0.0, "checks": 0.0,
@@ -121,8 +149,12 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
             detect, respond = None, response.step
     # keyframes, drives or parents move bodies: the scene graph stage runs
     animate = model.animation is not None and model.animation.has_motion
+    per_step = animate or detect is not None or respond is not None
+    frame_work = (model.inputs is not None or render is not None or realtime
+                  or on_frame is not None or should_stop is not None)
     if animate:
         profile["scenegraph"] = 0.0
+    if animate and not resume:
         t0 = clock()
         state = scenegraph.step(model, state)  # 3. the first sample is exact too
         profile["scenegraph"] += clock() - t0
@@ -153,19 +185,66 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
             render(s)
             profile["render"] += clock() - t0
 
+    def chunk(s: State, count: int) -> State:
+        """count steps of the dynamics in one compiled call, checked."""
+        t0 = clock()
+        good, failure = dynamics.run(model, s, count)
+        profile["dynamics"] += clock() - t0
+        result.state = good
+        if failure is not None:
+            raise_failure(model, failure)
+        return good
+
+    def one_step(s: State) -> State:
+        t0 = clock()
+        new = dynamics.step(model, s)  # 2.1 dynamic motion
+        t1 = clock()
+        profile["dynamics"] += t1 - t0
+        if animate:  # 2.1 kinematic motion and 3. scene graph at the new time
+            new = scenegraph.step(model, new, tuple(a[k_in_frame] for a in motion))
+            t2 = clock()
+            profile["scenegraph"] += t2 - t1
+            t1 = t2
+        if respond is not None:  # 2.3 collision: detection and response
+            new = respond(model, s, new, dynamics.advance)
+            t2 = clock()
+            profile["collision"] += t2 - t1
+            t1 = t2
+        check_state(model, new)
+        profile["checks"] += clock() - t1
+        if detect is not None:  # 2.3 collision: contacts (detection only)
+            t1 = clock()
+            new = new.replace(contacts=detect(model, s, new))
+            profile["collision"] += clock() - t1
+        result.state = new
+        return new
+
     if render is not None:
         profile["render"] = 0.0
-    if model.observer is not None and model.observer.mode == "attached":
+    if model.observer is not None and model.observer.mode == "attached" and not resume:
         state = result.state = navigation.attach(model, state)  # on its body from t = 0
     frame_start = frame_end = state
+    motion = ()
+    k_in_frame = 0
     sample(state)
     draw(state)
     start = clock()
-    # Overflow and NaN are detected by check_state, which names the body and time;
-    # numpy's own warnings would only add noise.
+    # Overflow and NaN are detected by the checks, which name the body and time; numpy's
+    # own warnings would only add noise.
     try:
         with np.errstate(all="ignore"):
+            first_frame = state.step // model.steps_per_frame
+            if not per_step and not frame_work:  # nothing to do between samples: one
+                while state.step < model.n_steps:  # compiled call per output sample
+                    to_sample = every - state.step % every if writer is not None else \
+                        model.n_steps
+                    state = chunk(state, min(to_sample, model.n_steps - state.step))
+                    if state.step % every == 0:
+                        sample(state)
+                result.frames = -(-state.step // model.steps_per_frame) - first_frame
             for frame in range(state.step // model.steps_per_frame, model.n_frames):
+                if state.step >= model.n_steps:
+                    break
                 if should_stop is not None and should_stop():
                     result.interrupted = True
                     break
@@ -185,31 +264,20 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
                     times = (state.step + 1 + np.arange(steps)) * model.dt
                     motion = scenegraph.local_motion(model, times)
                     profile["scenegraph"] += clock() - t0
-                for k in range(steps):
-                    t0 = clock()
-                    new = dynamics.step(model, state)  # 2.1 dynamic motion
-                    t1 = clock()
-                    profile["dynamics"] += t1 - t0
-                    if animate:  # 2.1 kinematic motion and 3. scene graph at the new time
-                        new = scenegraph.step(model, new, tuple(a[k] for a in motion))
-                        t2 = clock()
-                        profile["scenegraph"] += t2 - t1
-                        t1 = t2
-                    if respond is not None:  # 2.3 collision: detection and response
-                        new = respond(model, state, new, dynamics.advance)
-                        t2 = clock()
-                        profile["collision"] += t2 - t1
-                        t1 = t2
-                    check_state(model, new)
-                    profile["checks"] += clock() - t1
-                    if detect is not None:  # 2.3 collision: contacts (detection only)
-                        t1 = clock()
-                        new = new.replace(contacts=detect(model, state, new))
-                        profile["collision"] += clock() - t1
-                    state = new
-                    result.state = state
+                done = 0
+                while done < steps:
+                    if per_step:
+                        k_in_frame = done
+                        state = one_step(state)
+                        done += 1
+                    else:
+                        to_sample = every - state.step % every if writer is not None \
+                            else steps
+                        count = min(to_sample, steps - done)
+                        state = chunk(state, count)
+                        done += count
                     if state.step % every == 0:  # the observer only where a sample needs it
-                        sample(observer_at(state, k + 1))
+                        sample(observer_at(state, done))
                 if inputs is not None:  # the frame's end (or a run's last, partial frame)
                     state = result.state = observer_at(state, steps)
                 result.frames += 1
@@ -226,6 +294,23 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
         result.wall_s = clock() - start
     sample(state)
     return result
+
+
+def raise_failure(model: Model, failure) -> None:
+    """Raise the SimulationError of a step that failed its compiled checks, with the
+    message the Python checks give for the same state."""
+    from vrsim_cli.kernels import dynamics as kd
+
+    if failure.code == kd.BLOWUP_TRANSLATION:
+        _check_translation(model, failure.state)
+    if failure.code == kd.STEP_UNDERFLOW:
+        raise SimulationError("the adaptive step size fell below round-off (the motion is "
+                              "not smooth or not finite); try another integrator",
+                              body=dynamics.body_of_component(model, failure.index),
+                              t=failure.t)
+    rigid.check(model, failure.state)
+    raise SimulationError("the integration blew up; try a smaller dt or another integrator",
+                          body=model.body_name[failure.index], t=failure.t)
 
 
 def _pace(model: Model, start: float, state: State, result: RunResult) -> None:

@@ -106,3 +106,118 @@ def framing_camera(points: np.ndarray, radii: np.ndarray, *, top_down_2d: bool =
     far = max(DEFAULT_FAR, 4.0 * (distance + radius))
     return Camera.looking_at(centre + distance * direction, centre, WORLD_UP, fov_deg,
                              near, far)
+
+
+ACTION_WINDOW_S = 0.25  # s: the action camera smooths its motion over this before and after
+ACTION_MIN_RADIUS_M = 0.5  # m: it never comes closer than to see a 1 m wide view
+ELEVATION_DEG, AZIMUTH_DEG = 20.0, 30.0  # its direction: above and in front, as framing_camera
+
+
+def view_direction(top_down_2d: bool) -> np.ndarray:
+    """Unit vector from the target towards the eye: elevation 20 deg, azimuth 30 deg from
+    +z towards +x (y up); straight along +z for 2D scenes."""
+    if top_down_2d:
+        return np.array([0.0, 0.0, 1.0])
+    elevation, azimuth = math.radians(ELEVATION_DEG), math.radians(AZIMUTH_DEG)
+    return np.array([math.cos(elevation) * math.sin(azimuth), math.sin(elevation),
+                     math.cos(elevation) * math.cos(azimuth)])
+
+
+def fitting_distance(radius: float, fov_deg: float, aspect: float) -> float:
+    """Distance at which a sphere of `radius` fits the narrower field of view, 5 % margin:
+    a sphere of radius R seen from distance d fills a half-angle asin(R / d)."""
+    half_v = math.radians(fov_deg) / 2.0
+    half = min(half_v, math.atan(aspect * math.tan(half_v)))
+    return 1.05 * radius / math.sin(half)
+
+
+def action_cameras(centres: np.ndarray, radii: np.ndarray, shown: np.ndarray,
+                   times: np.ndarray, *, top_down_2d: bool = False,
+                   fov_deg: float = DEFAULT_FOV_DEG, aspect: float = 4.0 / 3.0,
+                   window_s: float = ACTION_WINDOW_S,
+                   min_radius: float = ACTION_MIN_RADIUS_M) -> list[Camera]:
+    """One camera per image that sees whole every sphere shown in that image.
+
+    centres: (k, n, 3) m, the spheres' centres in each of k images; radii: (n,) m;
+    shown: (k, n) bool, the spheres to frame in each image; times: (k,) s.
+
+    The camera looks from a fixed direction (`view_direction`) at a target that follows
+    the action: the middle of the box around the image's shown spheres, averaged over
+    the images within `window_s` before and after (a smooth path, centred on the action).
+    Its distance is the least at which every shown sphere of the image fits both the
+    horizontal and the vertical field of view (5 % margin), or the median of that
+    distance over the window when larger (the view widens and narrows smoothly, and a
+    body that is there for a few images only does not widen the others), and at least
+    the distance that shows a sphere of `min_radius`. So the image's own spheres are
+    always inside, and the picture is not wasted. Images with nothing to frame keep the
+    previous camera (the first such: the origin).
+    """
+    centres = np.asarray(centres, dtype=float).reshape(len(times), -1, 3)
+    radii = np.asarray(radii, dtype=float).reshape(-1)
+    shown = np.asarray(shown, dtype=bool).reshape(centres.shape[:2])
+    times = np.asarray(times, dtype=float)
+    k = len(times)
+    has = shown.any(axis=1)
+    lo = np.where(shown[..., None], centres - radii[None, :, None], np.inf).min(axis=1)
+    hi = np.where(shown[..., None], centres + radii[None, :, None], -np.inf).max(axis=1)
+    middle = np.full((k, 3), np.nan)
+    middle[has] = 0.5 * (lo[has] + hi[has])
+    start = np.searchsorted(times, times - window_s - 1e-12, side="left")
+    stop = np.searchsorted(times, times + window_s + 1e-12, side="right")
+    back = view_direction(top_down_2d)  # from the target towards the eye
+    right = np.cross(-back, WORLD_UP)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, -back)
+    half_v = math.radians(fov_deg) / 2.0
+    half_h = math.atan(aspect * math.tan(half_v))
+    shortest = fitting_distance(min_radius, fov_deg, aspect)
+    target = np.full((k, 3), np.nan)
+    need = np.full(k, np.nan)  # least distance from the target that shows the image
+    for i in np.flatnonzero(has):
+        target[i] = np.nanmean(middle[start[i]:stop[i]], axis=0)
+        rel = centres[i, shown[i]] - target[i]
+        r = radii[shown[i]]
+        need[i] = max(_fit(rel @ right, rel @ back, r, half_h),
+                      _fit(rel @ up, rel @ back, r, half_v), shortest)
+    cameras: list[Camera] = []
+    aim, distance = np.zeros(3), shortest
+    for i in range(k):
+        if has[i]:
+            aim = target[i]
+            distance = max(need[i], float(np.nanmedian(need[start[i]:stop[i]])))
+        near_clip = max(DEFAULT_NEAR, 0.01 * distance)
+        far_clip = max(DEFAULT_FAR, 8.0 * distance)
+        cameras.append(Camera.looking_at(aim + distance * back, aim, WORLD_UP,
+                                         fov_deg, near_clip, far_clip))
+    return cameras
+
+
+def _fit(across: np.ndarray, towards: np.ndarray, r: np.ndarray, half: float) -> float:
+    """Least distance D of the eye from the target (along the view axis) at which spheres
+    offset `across` the view and `towards` the eye, of radii r, lie within a field of
+    half-angle `half` (5 % margin): |across| + r / cos(half) <= (D - towards) tan(half)."""
+    slope = math.tan(half) / 1.05
+    return float(np.max(towards + (np.abs(across) + r / math.cos(half)) / slope))
+
+
+def project(camera: Camera, points: np.ndarray, width: int, height: int) -> tuple:
+    """Pixel coordinates (n, 2) (x right, y down from the top-left corner) and depths (n,)
+    in m along the view direction of world points (n, 3)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    eye = (camera.view_matrix() @ np.hstack([points, np.ones((len(points), 1))]).T).T
+    clip = (camera.projection_matrix(width / height) @ eye.T).T
+    depth = -eye[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ndc = clip[:, :2] / clip[:, 3:4]
+    pixels = np.column_stack([(ndc[:, 0] + 1.0) * 0.5 * width,
+                              (1.0 - ndc[:, 1]) * 0.5 * height])
+    return pixels, depth
+
+
+def projected_radius_px(camera: Camera, radius: np.ndarray, depth: np.ndarray,
+                        height: int) -> np.ndarray:
+    """Pixels spanned by the radius of a sphere at `depth` m (small-angle: r / d times
+    the focal length in pixels, height / (2 tan(fov / 2)))."""
+    focal = height / (2.0 * math.tan(math.radians(camera.fov_deg) / 2.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(depth > 0, focal * np.asarray(radius) / depth, 0.0)

@@ -51,7 +51,7 @@ def compile_frames(scene: Scene, problems: list[Problem]) -> FramesSpec | None:
                                           "move look_at, or give another up direction"))
     if "dir" not in frames:
         return None
-    folder = scene.resolve_path(at + ("dir",), problems)
+    folder = scene.resolve_path(at + ("dir",), problems, output=True)
     if folder is None:
         return None
     if os.path.lexists(folder) and not folder.is_dir():  # found now, not after the run

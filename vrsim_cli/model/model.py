@@ -59,6 +59,7 @@ class OutputSpec:
     path: Path | None
     format: str | None
     every_steps: int  # one sample every this many physics steps
+    up: str = "y"  # the scene's up axis, 'y' or 'z': MCAP turns it to Foxglove's z-up world
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,9 @@ class Model:
     # model.response.ResponseModel: how contacts change the motion (slide
     # 5.4.2); None without a collision block or with `collision.response: none` for all.
     response: object | None = None
+    # Arrays the compiled kernels take, built from the fields above on first use (not
+    # part of the model's value: `dataclasses.replace` starts a fresh cache).
+    cache: dict = field(default_factory=dict, compare=False, repr=False, init=False)
 
     @property
     def n_body(self) -> int:
@@ -324,28 +328,29 @@ def output_format_for(path: Path, explicit: str | None) -> str | None:
 
 def _output_spec(scene: Scene, out: dict, override, every_steps: int,
                  problems: list[Problem]) -> OutputSpec:
+    up = out.get("up", "y")
     if override is not None:
         path, fmt = override
-        return OutputSpec(Path(path), fmt, every_steps)
+        return OutputSpec(Path(path), fmt, every_steps, up)
     if "file" not in out:
-        return OutputSpec(None, None, every_steps)
-    path = scene.resolve_path(("output", "file"), problems)
+        return OutputSpec(None, None, every_steps, up)
+    path = scene.resolve_path(("output", "file"), problems, output=True)
     if path is None:
-        return OutputSpec(None, None, every_steps)
+        return OutputSpec(None, None, every_steps, up)
     # resolve_path follows links; the name the scene gives must not be one itself (the
     # output would replace the file it points to, or the link)
-    named = os.path.normpath(scene.base_dir.resolve() / out["file"])
+    named = os.path.normpath(Path.cwd().resolve() / out["file"])
     if os.path.islink(named):
         problems.append(scene.problem(("output", "file"), f"'{out['file']}' is a symbolic "
                                       f"link; give the file it points to"))
-        return OutputSpec(None, None, every_steps)
+        return OutputSpec(None, None, every_steps, up)
     fmt = output_format_for(path, out.get("format"))
     if fmt is None:
         problems.append(scene.problem(("output", "file"), f"cannot tell the format of "
                                       f"'{out['file']}'", "use a .mcap or .csv suffix, or set "
                                       "output.format (tum writes a folder)"))
     problems.extend(_output_target_problems(scene, path, fmt))
-    return OutputSpec(path, fmt, every_steps)
+    return OutputSpec(path, fmt, every_steps, up)
 
 
 def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[Problem]:
@@ -361,7 +366,7 @@ def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[P
         return [scene.problem(at, about(scene.get(at), name))]
     if not path.parent.is_dir():
         return [scene.problem(at, f"folder '{path.parent}' does not exist",
-                              "paths are relative to the scene file's folder")]
+                              "output paths are relative to the current folder")]
     if fmt in ("csv", "mcap") and path.is_dir():
         return [scene.problem(at, f"'{scene.get(at)}' is a folder; {fmt} output is a file")]
     if fmt == "tum" and path.exists() and not path.is_dir():

@@ -263,6 +263,20 @@ def _read_tracker_csv(scene, path, problems):
     return data[:, 0], poses
 
 
+def _input_record(schema, channel, data: bytes) -> dict:
+    """A /vrsim/input message as a dict: protobuf (vrsim.Input, decoded with the schema
+    the file carries) or JSON (files of vrsim before 0.2)."""
+    if channel.message_encoding == "json":
+        return json.loads(data)
+    from mcap_protobuf.decoder import DecoderFactory
+
+    decode = DecoderFactory().decoder_for(channel.message_encoding, schema)
+    if decode is None:
+        raise ValueError(f"/vrsim/input has message encoding '{channel.message_encoding}'")
+    message = decode(data)
+    return {field.name: value for field, value in message.ListFields()} | {"t": message.t}
+
+
 def _read_replay(scene, path, observer, problems) -> InputModel:
     """Sensor values recorded on `/vrsim/input` by an earlier run, held between samples, so
     a run at the same frame times sees exactly the recorded values."""
@@ -272,11 +286,12 @@ def _read_replay(scene, path, observer, problems) -> InputModel:
 
         with open(path, "rb") as f:
             times, values, poses = [], [], []
-            for _s, _c, message in make_reader(f).iter_messages(topics=["/vrsim/input"]):
-                sample = json.loads(message.data)
+            for schema, channel, message in make_reader(f).iter_messages(
+                    topics=["/vrsim/input"]):
+                sample = _input_record(schema, channel, message.data)
                 times.append(float(sample["t"]))
                 values.append([float(sample.get(c, 0.0)) for c in INPUT_CHANNELS])
-                if "pose" in sample:
+                if sample.get("pose"):
                     poses.append([float(x) for x in sample["pose"]])
     except FileNotFoundError:
         problems.append(scene.problem(key, f"file '{scene.get(key)}' not found",

@@ -124,7 +124,7 @@ class Inputs:
     pose: np.ndarray | None = None
 
     def record(self) -> dict:
-        """The JSON message written to /vrsim/input (and read back by input.replay)."""
+        """The fields of the /vrsim/input message (read back by input.replay)."""
         out = {"t": self.t, "frame": self.frame, "alpha": self.alpha, "beta": self.beta,
                "pitch": self.pitch}
         if self.pose is not None:

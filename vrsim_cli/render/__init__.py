@@ -16,7 +16,9 @@ from __future__ import annotations
 import sys
 
 from vrsim_cli.errors import InputError
-from vrsim_cli.maths.camera import Camera, framing_camera
+import numpy as np
+
+from vrsim_cli.maths.camera import Camera, action_cameras, framing_camera
 
 INSTALL_HINT = ("install OSMesa and PyOpenGL: `apt-get install libosmesa6` and "
                 "`pip install 'vrsim-cli[render]'`")
@@ -38,6 +40,65 @@ def default_camera(model, width: int, height: int) -> Camera:
     centres, radii = bounding_spheres(model, draw_list(model))
     return framing_camera(centres, radii, top_down_2d=model.dimension == 2,
                           aspect=width / height)
+
+
+MOVED_M = 1e-6  # m: a body whose position changes more than this moves
+TURNED = 1e-6  # a body whose quaternion changes more than this (per component) moves
+LET_GO_M = 12.0  # m: this far from where the scene starts, a body has left it
+
+
+def action_camera_path(model, states: list, width: int, height: int) -> list[Camera]:
+    """The default camera of every image of `states` (the recorded states of a run): it
+    keeps every body that moves in view (`camera.action_cameras`, `framed_bodies`). A
+    scene in which nothing moves gets `default_camera` throughout."""
+    from vrsim_cli.render.geometry import body_radii
+
+    framed = framed_bodies(model, states)
+    if not framed.any():
+        return [default_camera(model, width, height)] * len(states)
+    pos = np.stack([s.body_pos for s in states])
+    radii, _ = body_radii(model)
+    return action_cameras(pos, radii, framed, np.array([s.t for s in states]),
+                          top_down_2d=model.dimension == 2, aspect=width / height)
+
+
+def framed_bodies(model, states: list) -> np.ndarray:
+    """(k, n_body) bool: the bodies the action camera keeps in view in each of k states.
+
+    A body is framed when it moves (its position or orientation changes during the run),
+    from its emission on (an emitted particle), while it stays in the scene: within
+    LET_GO_M of the box around every body present at the start (planes aside), a little
+    more than the ground grid's half-width. A body beyond it has left (collision.yaml's bullet at
+    500 m/s, the fountain's particles falling through the floor): following it would
+    shrink everything else to nothing.
+    """
+    from vrsim_cli.render.geometry import body_radii
+
+    pos = np.stack([s.body_pos for s in states])
+    quat = np.stack([s.body_quat for s in states])
+    steps = np.array([s.step for s in states])
+    exists = model.body_emit_step[None, :] <= steps[:, None]
+    first = np.argmax(exists, axis=0)  # each body's first image
+    every = np.arange(model.n_body)
+    moved = (np.abs(pos - pos[first, every]).max(axis=(0, 2)) > MOVED_M) | \
+        (np.abs(quat - quat[first, every]).max(axis=(0, 2)) > TURNED)
+    moved &= exists.any(axis=0)
+    lo, hi = start_box(model, states[0])
+    outside = np.linalg.norm(np.maximum(lo - pos, 0.0) + np.maximum(pos - hi, 0.0), axis=-1)
+    return exists & moved[None, :] & (outside <= LET_GO_M)
+
+
+def start_box(model, state) -> tuple[np.ndarray, np.ndarray]:
+    """(lo (3,), hi (3,)) m: the box around the bodies present in `state` (the first),
+    each as its bounding sphere; planes are infinite and left out."""
+    from vrsim_cli.render.geometry import body_radii
+
+    radii, _ = body_radii(model)
+    present = np.flatnonzero((model.body_emit_step <= state.step) & (radii > 0))
+    if len(present) == 0:
+        return np.zeros(3), np.zeros(3)
+    return ((state.body_pos[present] - radii[present, None]).min(axis=0),
+            (state.body_pos[present] + radii[present, None]).max(axis=0))
 
 
 def time_label(t: float) -> str:

@@ -197,3 +197,23 @@ def flight_points(model) -> np.ndarray:
     elif dynamic.any():
         points.append(pos[dynamic] + vel[dynamic] * duration)
     return np.concatenate(points).reshape(-1, 3)
+
+
+def body_radii(model) -> tuple[np.ndarray, np.ndarray]:
+    """(bounding (n_body,), inner (n_body,)) m: the radius of a sphere about each body's
+    origin that holds all its parts, and the half-extent of its thinnest part (what is
+    seen of it at least). Planes (infinite) get 0 for both."""
+    dl = draw_list(model)
+    bounding = np.zeros(model.n_body)
+    inner = np.full(model.n_body, np.inf)
+    half = np.array([UNIT_HALF_EXTENT.get(m, (1.0, 1.0, 1.0)) for m in dl.part_mesh],
+                    dtype=float).reshape(-1, 3)
+    for body, local, h in zip(dl.part_body.tolist(), dl.part_local, half):
+        if body < 0:
+            continue
+        extents = np.abs(local[:3, :3]) @ h  # the part's box half-sizes, body-aligned
+        reach = float(np.linalg.norm(local[:3, 3]) + np.linalg.norm(extents))
+        bounding[body] = max(bounding[body], reach)
+        inner[body] = min(inner[body], float(np.min(extents[extents > 0], initial=reach)))
+    inner[~np.isfinite(inner)] = 0.0
+    return bounding, inner

@@ -18,7 +18,7 @@ from OpenGL import GL, osmesa  # noqa: E402
 
 from vrsim_cli.maths.camera import Camera  # noqa: E402
 from vrsim_cli.model.animation import appearance  # noqa: E402
-from vrsim_cli.render.font import draw_text  # noqa: E402
+from vrsim_cli.render.label import draw_label  # noqa: E402
 from vrsim_cli.render.geometry import (PRIMITIVES, body_transforms, draw_list)  # noqa: E402
 
 BACKGROUND = (0.92, 0.93, 0.95)  # RGB in [0, 1], the clear colour
@@ -158,7 +158,7 @@ class OsmesaRenderer:
         image = np.ascontiguousarray(self.buffer[::-1, :, :3])  # OSMesa's row 0 is the bottom
         if overlay:
             scale = max(1, self.height // 240)
-            draw_text(image, overlay, 4 * scale, 4 * scale, scale)
+            image = draw_label(image, overlay, 4 * scale, 4 * scale, scale)
         return image
 
     def _draw(self, parts: np.ndarray, modelview: np.ndarray, colors: np.ndarray) -> None:

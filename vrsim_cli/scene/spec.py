@@ -156,12 +156,15 @@ class Scene:
         _validate(scene)  # command-line values meet the same checks as the file's
         return scene
 
-    def resolve_path(self, path: Sequence[str | int], problems: list[Problem]) -> Path | None:
-        """Resolve the file path stored at `path` against the scene's folder.
+    def resolve_path(self, path: Sequence[str | int], problems: list[Problem],
+                     output: bool = False) -> Path | None:
+        """Resolve the file path stored at `path`.
 
-        A scene file may only name files inside its own folder: a shared scene cannot read
-        or overwrite anything else on the user's machine. Paths given on the command line
-        are the user's own and are not restricted.
+        Files a scene reads (meshes, input files) are relative to the scene file's folder
+        and must stay inside it: a shared scene cannot read anything else on the user's
+        machine. Files it writes (`output.file`, `output.frames.dir`: `output=True`) are
+        relative to the current folder, where the user runs vrsim, and must stay inside
+        that. Paths given on the command line are the user's own and are not restricted.
         """
         raw = self.get(path)
         if "\0" in raw:  # no file system takes it; os calls would raise ValueError
@@ -171,7 +174,7 @@ class Scene:
         if tuple(path) in self.overrides:
             return candidate
         try:
-            base = self.base_dir.resolve()
+            base = (Path.cwd() if output else self.base_dir).resolve()
             resolved = (base / candidate).resolve()
         except RuntimeError:  # Python 3.11 raises this for a loop of links
             problems.append(self.problem(path, f"'{raw}' is a loop of symbolic links"))
@@ -180,9 +183,16 @@ class Scene:
             problems.append(self.problem(path, f"cannot use '{raw}': {exc.strerror or exc}"))
             return None
         if candidate.is_absolute() or not resolved.is_relative_to(base):
-            problems.append(self.problem(
-                path, f"path '{raw}' leaves the scene file's folder",
-                "give a path inside the scene's folder, or use -o on the command line"))
+            if output:
+                problems.append(self.problem(
+                    path, f"path '{raw}' leaves the current folder",
+                    "a scene writes only below the folder vrsim runs in; to write elsewhere "
+                    "give the path on the command line (-o FILE, --frames DIR)"))
+            else:
+                problems.append(self.problem(
+                    path, f"path '{raw}' leaves the scene file's folder",
+                    "a scene reads only files in its own folder or below it; copy or link "
+                    "the file there"))
             return None
         return resolved
 
@@ -315,6 +325,15 @@ def _yaml_problem(file: str, exc: yaml.YAMLError, text: str) -> Problem:
         message = exc.problem or exc.context or "invalid YAML"
         if "could not determine a constructor" in str(exc):
             message = f"YAML tag not allowed: {message}"
+        opened = exc.context_mark
+        if (opened is not None and mark is not None and opened.line < mark.line
+                and (exc.context or "").startswith(("while parsing", "while scanning"))):
+            # An unclosed bracket or quote: PyYAML notices it where the next line starts
+            # something else; point at the bracket or quote the user left open.
+            what = exc.context.split(" ", 2)[2]
+            return Problem(file, opened.line + 1, opened.column + 1, (),
+                           f"YAML: {what} that starts here is not closed ({message}, at "
+                           f"line {line}, column {col})", "close the bracket or quote")
         return Problem(file, line, col, (), f"YAML: {message}")
     return Problem(file, 0, 0, (), f"YAML: {exc}")
 

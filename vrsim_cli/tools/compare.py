@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vrsim_cli.errors import InputError, Problem, printable
+from vrsim_cli.text import plural, table
 from vrsim_cli.tools.trajectory import Track, Trajectory
 
 TIME_EPS_S = 1e-9  # s: two sample times within this are the same instant (MCAP stores ns)
@@ -150,6 +151,11 @@ def compare(a: Trajectory, b: Trajectory, plan: TolerancePlan = TolerancePlan(),
             allow_missing_entities: bool = False) -> Report:
     """Compare trajectory `a` with the reference `b`. Raises InputError when a track's
     times are not increasing (two samples of one entity at the same time)."""
+    for traj in (a, b):
+        if not traj.tracks and traj.format == "mcap":
+            raise InputError([Problem(traj.source, 0, 0, (), "holds no trajectory",
+                                      "vrsim reads /vrsim/state or, from files of other "
+                                      "tools, foxglove.FrameTransforms channels")])
     report = Report(a, b, allow_missing_entities=allow_missing_entities)
     report.only_in_a = [n for n in a.tracks if n not in b.tracks]
     report.only_in_b = [n for n in b.tracks if n not in a.tracks]
@@ -278,36 +284,36 @@ def format_report(report: Report, *, show_all: bool = False, max_rows: int = 20)
 
 def _report_lines(report: Report, show_all: bool, max_rows: int) -> list[str]:
     a, b = report.a, report.b
-    lines = [f"A: {a.source} ({a.format}, {len(a.tracks)} entities)",
-             f"B: {b.source} ({b.format}, {len(b.tracks)} entities) - the reference",
+    lines = [f"A: {a.source} ({a.format}, {plural(len(a.tracks), 'entity')})",
+             f"B: {b.source} ({b.format}, {plural(len(b.tracks), 'entity')}) - the reference",
              f"times: compared on the sample times both files hold (|tA - tB| <= "
              f"{TIME_EPS_S:g} s), no interpolation"]
     rows = report.entities
     failing = [e for e in rows if not e.ok]
     shown = rows if show_all or len(rows) <= max_rows else failing
-    header = (f"{'entity':<16} {'samples':>7} {'onlyA':>5} {'onlyB':>5} {'pos m':>9} "
-              f"{'angle rad':>9} {'vel m/s':>9} {'angvel':>9} {'first over':>10}  result")
-    if shown:
-        lines.append(header)
+    cells = []
     for e in shown:
         first = "-" if e.first_exceed_t is None else f"{e.first_exceed_t:.6g}"
         verdict = "ok" if e.ok else (f"FAIL {e.first_exceed_what}" if e.first_exceed_what
                                      else f"FAIL {e.span_mismatch}")
         if not e.ok and e.first_exceed_what and e.span_mismatch:
             verdict += f"; {e.span_mismatch}"
-        lines.append(f"{e.name:<16} {e.compared:>7} {e.only_a:>5} {e.only_b:>5} "
-                     f"{_fmt(e.pos_err):>9} {_fmt(e.angle_err):>9} {_fmt(e.vel_err):>9} "
-                     f"{_fmt(e.angvel_err):>9} {first:>10}  {verdict}")
+        cells.append([e.name, e.compared, e.only_a, e.only_b, _fmt(e.pos_err),
+                      _fmt(e.angle_err), _fmt(e.vel_err), _fmt(e.angvel_err), first, verdict])
+    if shown:  # columns as wide as their longest cell: long entity names stay in line
+        lines += table(["entity", "samples", "onlyA", "onlyB", "pos m", "angle rad",
+                        "vel m/s", "angvel", "first over", "result"], cells,
+                       right=set(range(1, 9)))
     if len(shown) < len(rows):
         more = "more " if shown else ""
-        lines.append(f"... {len(rows) - len(shown)} {more}entities within tolerance "
-                     f"(--all lists them)")
+        lines.append(f"... {plural(len(rows) - len(shown), more + 'entity', more + 'entities')}"
+                     f" within tolerance (--all lists them)")
     if any(e.only_a or e.only_b for e in rows):
         lines.append("note: the files have different sample times; errors are over the "
                      "shared times only")
     if report.velocity_skipped:
         names = report.velocity_skipped
-        lines.append(f"note: velocities not compared for {len(names)} entities "
+        lines.append(f"note: velocities not compared for {plural(len(names), 'entity')} "
                      f"({', '.join(names[:5])}{', ...' if len(names) > 5 else ''}): "
                      f"a file has none (TUM holds poses only)")
     for side, names in (("A", report.only_in_a), ("B", report.only_in_b)):
@@ -320,13 +326,13 @@ def _report_lines(report: Report, show_all: bool, max_rows: int) -> list[str]:
                      f"{'' if worst.worst_t is None else f' at t = {worst.worst_t:.6g} s'})")
     first = report.first_exceedance
     if report.ok:
-        lines.append(f"OK: {len(rows)} entities within tolerance")
+        lines.append(f"OK: {plural(len(rows), 'entity')} within tolerance")
     else:
         why = []
         if first:
             why.append(f"first exceedance at t = {first[0]:.6g} s ({first[1]})")
         if failing and not first:
-            why.append(f"{len(failing)} entities with mismatched samples")
+            why.append(f"{plural(len(failing), 'entity')} with mismatched samples")
         elif any(e.span_mismatch for e in failing):
             why.append("sample spans differ")
         if (report.only_in_a or report.only_in_b) and not report.allow_missing_entities:

@@ -16,10 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from vrsim_cli.errors import InputError, Problem
+from vrsim_cli.errors import InputError, Problem, printable
 from vrsim_cli.scene.files import input_file_problem
+from vrsim_cli.text import plural, table
 from vrsim_cli.writers.entities import CSV_COLUMNS
-from vrsim_cli.writers.foxglove_schemas import STATE_COLUMNS
+
+STATE_COLUMNS = CSV_COLUMNS[2:]  # px .. wz: the 13 numbers of an entity
 
 
 @dataclass
@@ -51,6 +53,8 @@ class Trajectory:
     tracks: dict = field(default_factory=dict)  # entity name -> Track, in file order
     channels: list = field(default_factory=list)  # (topic, schema name, message count)
     metadata: dict = field(default_factory=dict)
+    frames: dict = field(default_factory=dict)  # child frame -> parent (MCAP transforms)
+    source_channels: list = field(default_factory=list)  # topics the tracks came from
 
     @property
     def times(self) -> np.ndarray:
@@ -63,6 +67,59 @@ class Trajectory:
 # packed float64 (a short number such as "0," is 2 bytes of text but 8 in memory).
 MAX_TRAJECTORY_BYTES = 128 * 1024 * 1024
 MAX_TRAJECTORY_ROWS = 2_500_000  # entity samples: 14 float64 each, ~280 MB (compare reads 2)
+
+
+def summary(traj: Trajectory, file: str) -> dict:
+    """What `vrsim info` reports, as a JSON-ready dict."""
+    times = traj.times
+    return {
+        "file": file, "format": traj.format,
+        "entities": list(traj.tracks),
+        "samples": int(len(times)),
+        "start_s": float(times[0]) if len(times) else None,
+        "end_s": float(times[-1]) if len(times) else None,
+        "duration_s": float(times[-1] - times[0]) if len(times) else 0.0,
+        "channels": [{"topic": t, "schema": s, "messages": n} for t, s, n in traj.channels],
+        "tracks_from": traj.source_channels or (["/vrsim/state"] if traj.format == "mcap"
+                                                and traj.tracks else []),
+        "parent_frames": dict(traj.frames),
+        "vrsim": {k: v for k, v in traj.metadata.get("vrsim", {}).items() if k != "scene"},
+    }
+
+
+def format_summary(info: dict) -> list[str]:
+    """The lines of `vrsim info`, escaped: names, topics and metadata come from the file
+    and may hold terminal control sequences (errors.printable)."""
+    names = info["entities"]
+    lines = [f"{info['file']}: {info['format']}, {plural(len(names), 'entity')}, "
+             f"{plural(info['samples'], 'sample')}"]
+    if info["samples"]:
+        lines.append(f"time: {info['start_s']:.6g} .. {info['end_s']:.6g} s "
+                     f"(duration {info['duration_s']:.6g} s)")
+    shown = ", ".join(names[:10]) + (f", ... ({len(names) - 10} more)" if len(names) > 10
+                                     else "")
+    lines.append(f"entities: {shown}")
+    if info["format"] == "mcap" and info["tracks_from"] != ["/vrsim/state"]:
+        if info["tracks_from"]:
+            parents = sorted(set(info["parent_frames"].values()))
+            lines.append(f"tracks from {', '.join(info['tracks_from'])} (FrameTransforms): "
+                         f"position and orientation of each frame in its parent "
+                         f"({', '.join(parents)}); no velocities")
+        else:
+            lines.append("no trajectories: the file has no /vrsim/state and no "
+                         "foxglove.FrameTransforms channel")
+    if info["channels"]:
+        lines.append("channels:")
+        lines += table(["topic", "schema", "messages"],
+                       [[printable(c["topic"]), printable(c["schema"]), c["messages"]]
+                        for c in info["channels"]],
+                       right={2}, indent="  ")
+    made = info["vrsim"]
+    if made:
+        lines.append(f"made by vrsim {made.get('version', '?')} from "
+                     f"{made.get('scene_file', '?')} (dt {made.get('dt', '?')} s, "
+                     f"{made.get('integrator', '?')})")
+    return [printable(line) for line in lines]
 
 
 def read_trajectory(path: str | Path) -> Trajectory:
@@ -192,13 +249,18 @@ def _read_tum_folder(path: Path) -> Trajectory:
     return traj
 
 
+TRANSFORM_SCHEMAS = ("foxglove.FrameTransforms", "foxglove.FrameTransform")
+
+
 def _read_mcap(path: Path) -> Trajectory:
+    """vrsim's own `/vrsim/state` when the file has it (every column, exactly); else the
+    transforms of any `foxglove.FrameTransforms` or `foxglove.FrameTransform` channel, as
+    another tool writes them (positions and orientations of each child frame in its parent
+    frame; velocities NaN). Protobuf and JSON messages are both read."""
     from mcap.reader import make_reader
 
     traj = Trajectory(str(path), "mcap")
-    times: dict[str, array] = {}
-    rows: dict[str, array] = {}
-    count = 0
+    samples = _Samples(path)
     try:
         with open(path, "rb") as f:
             reader = make_reader(f)
@@ -207,29 +269,129 @@ def _read_mcap(path: Path) -> Trajectory:
                 raise _fail(path, 0, "MCAP file has no summary (was the run interrupted "
                                      "before vrsim 0.1?)")
             counts = summary.statistics.channel_message_counts if summary.statistics else {}
+            schema_of = {}
             for cid, channel in sorted(summary.channels.items()):
                 schema = summary.schemas.get(channel.schema_id)
+                schema_of[channel.topic] = schema.name if schema else ""
                 traj.channels.append((channel.topic, schema.name if schema else "",
                                       counts.get(cid, 0)))
             for record in reader.iter_metadata():
                 traj.metadata[record.name] = dict(record.metadata)
-            for _schema, _channel, message in reader.iter_messages(topics=["/vrsim/state"]):
-                sample = json.loads(message.data)
-                for entity in sample["entities"]:
-                    name = entity["name"]
-                    if name not in times:
-                        times[name], rows[name] = array("d"), array("d")
-                    times[name].append(float(sample["t"]))
-                    rows[name].extend([entity[c] for c in STATE_COLUMNS])
-                    count += 1
-                    if count > MAX_TRAJECTORY_ROWS:
-                        raise _too_many(path)
+            decode = _Decoders()
+            if "/vrsim/state" in schema_of:
+                for schema, channel, message in reader.iter_messages(topics=["/vrsim/state"]):
+                    _state_rows(decode(schema, channel, message), samples)
+            else:
+                topics = [t for t, s in schema_of.items() if s in TRANSFORM_SCHEMAS]
+                if topics:
+                    traj.source_channels = topics
+                for schema, channel, message in reader.iter_messages(topics=topics):
+                    _transform_rows(decode(schema, channel, message), message.log_time,
+                                    samples, traj.frames)
     except InputError:
         raise
     except OSError as exc:
         raise _fail(path, 0, f"cannot read: {exc.strerror}") from None
     except Exception as exc:  # the mcap library raises many types for corrupt files
         raise _fail(path, 0, f"not a readable MCAP file ({type(exc).__name__}: {exc})") from None
-    for name in times:
-        traj.tracks[name] = Track.from_rows(times[name], rows[name])
+    for name in samples.times:
+        traj.tracks[name] = Track.from_rows(samples.times[name], samples.rows[name])
     return traj
+
+
+class _Samples:
+    """Entity samples as they are read, packed float64 per entity (times[name]: n,
+    rows[name]: 13 n), refused beyond MAX_TRAJECTORY_ROWS."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.times: dict[str, array] = {}
+        self.rows: dict[str, array] = {}
+        self.count = 0
+
+    def add(self, name: str, t: float, row) -> None:
+        if name not in self.times:
+            self.times[name], self.rows[name] = array("d"), array("d")
+        self.count += 1
+        if self.count > MAX_TRAJECTORY_ROWS:
+            raise _too_many(self.path)
+        self.times[name].append(t)
+        self.rows[name].extend(row)
+
+
+class _Decoders:
+    """Decodes a message by its channel's encoding: protobuf (with the schema the file
+    carries, through mcap-protobuf-support) into a message object, JSON into a dict."""
+
+    def __init__(self):
+        self.cache: dict = {}
+
+    def __call__(self, schema, channel, message):
+        decode = self.cache.get(channel.id)
+        if decode is None:
+            decode = self.cache[channel.id] = self._decoder(schema, channel)
+        return decode(message.data)
+
+    @staticmethod
+    def _decoder(schema, channel):
+        if channel.message_encoding == "json":
+            return json.loads
+        if channel.message_encoding == "protobuf":
+            from mcap_protobuf.decoder import DecoderFactory
+
+            decode = DecoderFactory().decoder_for("protobuf", schema)
+            if decode is not None:
+                return decode
+        raise ValueError(f"channel {channel.topic} has message encoding "
+                         f"'{channel.message_encoding}', which vrsim cannot read (protobuf or "
+                         f"json)")
+
+
+def _state_rows(sample, samples: _Samples) -> None:
+    """Rows of one vrsim.State: the packed arrays of the protobuf message, or the
+    per-entity objects of the JSON one (vrsim before 0.2)."""
+    if isinstance(sample, dict):  # JSON
+        t = float(sample["t"])
+        for entity in sample["entities"]:
+            samples.add(entity["name"], t, [float(entity[c]) for c in STATE_COLUMNS])
+        return
+    t = float(sample.t)
+    names = list(sample.entity)
+    n = len(names)
+    columns = np.hstack([np.asarray(getattr(sample, field), dtype=float).reshape(n, width)
+                         for field, width in (("position", 3), ("orientation", 4),
+                                              ("velocity", 3), ("angular_velocity", 3))])
+    for name, row in zip(names, columns.tolist()):
+        samples.add(name, t, row)
+
+
+def _transform_rows(message, log_time: int, samples: _Samples, frames: dict) -> None:
+    """Rows of a FrameTransforms (or one FrameTransform) message, protobuf or in
+    Foxglove's JSON field names; a transform without a timestamp takes the log time."""
+    if not isinstance(message, dict):
+        from google.protobuf.json_format import MessageToDict
+
+        message = MessageToDict(message, preserving_proto_field_name=True)
+    transforms = message.get("transforms", [message] if "child_frame_id" in message else [])
+    for tf in transforms:
+        name = tf.get("child_frame_id", "")
+        stamp = tf.get("timestamp") or {}
+        if isinstance(stamp, str):  # protobuf JSON form of google.protobuf.Timestamp
+            t = _rfc3339_seconds(stamp)
+        else:
+            seconds = stamp.get("sec", stamp.get("seconds", 0))
+            nanos = stamp.get("nsec", stamp.get("nanos", 0))
+            t = int(seconds) + int(nanos) * 1e-9 if (seconds or nanos) else log_time * 1e-9
+        p, q = tf.get("translation") or {}, tf.get("rotation") or {}
+        frames[name] = tf.get("parent_frame_id", "")
+        samples.add(name, t, [float(p.get(c, 0.0)) for c in "xyz"]
+                    + [float(q.get(c, 0.0)) for c in "wxyz"] + [np.nan] * 6)
+
+
+def _rfc3339_seconds(text: str) -> float:
+    """Seconds since the epoch of an RFC 3339 time as protobuf's JSON mapping writes it."""
+    from datetime import datetime, timezone
+
+    head, _, frac = text.rstrip("Z").partition(".")
+    whole = datetime.strptime(head, "%Y-%m-%dT%H:%M:%S").replace(tzinfo=timezone.utc)
+    return whole.timestamp() + (float("0." + frac) if frac else 0.0)

@@ -1,13 +1,17 @@
 """Rendered frames as numbered PNG files: frame_000000.png, frame_000001.png, ...
 
 Layer 6. Image k shows loop frame k * every, at t = k * every / frame_rate (image 0 is the
-initial state). Each file is written atomically, so a viewer or video encoder never reads
-half an image. When the run ends, frame files numbered beyond the last image of this run
-(left over from an earlier, longer run) are removed, so the folder holds one run's frames.
+initial state). The states to draw are kept during the run and drawn when it ends: the
+default camera (`render.action_camera_path`) frames the moving bodies of the whole run,
+so it needs all of it. Each file is PNG through Pillow, written atomically, so a viewer
+or video encoder never reads half an image. When the run ends, frame files numbered
+beyond the last image of this run (left over from an earlier, longer run) are removed, so
+the folder holds one run's frames.
 """
 
 from __future__ import annotations
 
+import io
 import re
 from pathlib import Path
 
@@ -18,17 +22,29 @@ from vrsim_cli.model.frames import FramesSpec
 from vrsim_cli.model.model import Model
 from vrsim_cli.model.state import State
 from vrsim_cli.writers.atomic import AtomicFile
-from vrsim_cli.writers.png import encode_png
 
 FRAME_NAME = "frame_{:06d}.png"
 FRAME_PATTERN = re.compile(r"frame_(\d{6})\.png")
 
 
+def encode_png(image) -> bytes:
+    """PNG bytes of `image`: (height, width, 3) uint8 RGB, row 0 at the top (Pillow)."""
+    import numpy as np
+    from PIL import Image
+
+    image = np.ascontiguousarray(image, dtype=np.uint8)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"expected an (height, width, 3) image, got shape {image.shape}")
+    out = io.BytesIO()
+    Image.fromarray(image, "RGB").save(out, format="PNG")
+    return out.getvalue()
+
+
 class FramesWriter:
-    """Called once per loop frame (and once for the initial state) with the state; renders
-    and writes every `spec.every`-th frame. `renderer` has `render(state, overlay)` and
-    `close()` (see `render.open_renderer`); `video`, if given, receives every image too
-    (see `writers.video.VideoWriter`)."""
+    """Called once per loop frame (and once for the initial state) with the state; keeps
+    every `spec.every`-th, and draws them all on `close()`. `renderer` has
+    `render(state, overlay, camera)` and `close()` (see `render.open_renderer`); `video`,
+    if given, receives every image too (see `writers.video.VideoWriter`)."""
 
     def __init__(self, model: Model, spec: FramesSpec, renderer, label=None, video=None):
         self.model = model
@@ -37,6 +53,7 @@ class FramesWriter:
         self.label = label
         self.video = video
         self.images = 0
+        self.states: list[State] = []
         try:
             spec.dir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -45,33 +62,45 @@ class FramesWriter:
 
     def __call__(self, state: State) -> None:
         frame = -(-state.step // self.model.steps_per_frame)  # the last frame may be short
-        if frame % self.spec.every:
-            return
-        image = self.renderer.render(state, self.label(state.t) if self.label else None,
-                                     camera=self.camera(state))
-        out = AtomicFile(self.spec.dir / FRAME_NAME.format(self.images))
-        try:
-            out.write(encode_png(image))
-            out.commit()
-        finally:
-            out.discard()
-        if self.video is not None:
-            self.video.append(image)
-        self.images += 1
+        if frame % self.spec.every == 0:
+            self.states.append(state)
 
-    def camera(self, state: State) -> Camera | None:
-        """The observer's camera when the scene has an observer and no frames camera (the
-        observer looks along its local -z, local +y up); else None: the renderer's own."""
+    def cameras(self) -> list[Camera]:
+        """The camera of each kept state: the scene's frames camera if it has one, else
+        the observer's (the observer looks along its local -z, local +y up), else the
+        action camera that keeps every moving body in view."""
+        if self.spec.camera is not None:
+            return [self.spec.camera] * len(self.states)
         observer = self.model.observer
-        if observer is None or self.spec.camera is not None:
-            return None
-        return Camera(eye=tuple(state.observer_pos.tolist()),
-                      forward=tuple(quat_rotate(state.observer_quat, [0.0, 0.0, -1.0]).tolist()),
-                      up=tuple(quat_rotate(state.observer_quat, [0.0, 1.0, 0.0]).tolist()),
-                      fov_deg=observer.fov_deg)
+        if observer is not None:
+            return [Camera(eye=tuple(s.observer_pos.tolist()),
+                           forward=tuple(quat_rotate(s.observer_quat, [0.0, 0.0, -1.0]).tolist()),
+                           up=tuple(quat_rotate(s.observer_quat, [0.0, 1.0, 0.0]).tolist()),
+                           fov_deg=observer.fov_deg) for s in self.states]
+        from vrsim_cli.render import action_camera_path
+
+        return action_camera_path(self.model, self.states, self.spec.width, self.spec.height)
 
     def close(self) -> None:
-        """Free the renderer, finish the video, remove stale frames of an earlier run."""
+        """Draw and write the kept states, finish the video, remove stale frames of an
+        earlier run, free the renderer."""
+        try:
+            for state, camera in zip(self.states, self.cameras() if self.states else []):
+                image = self.renderer.render(state, self.label(state.t) if self.label else None,
+                                             camera=camera)
+                out = AtomicFile(self.spec.dir / FRAME_NAME.format(self.images))
+                try:
+                    out.write(encode_png(image))
+                    out.commit()
+                finally:
+                    out.discard()
+                if self.video is not None:
+                    self.video.append(image)
+                self.images += 1
+        except BaseException:
+            self.abort()
+            raise
+        self.states = []
         self.renderer.close()
         if self.video is not None:
             self.video.close()
@@ -84,6 +113,7 @@ class FramesWriter:
                     pass  # a stale file we cannot remove is not worth failing the run for
 
     def abort(self) -> None:
+        self.states = []
         self.renderer.close()
         if self.video is not None:
             self.video.abort()

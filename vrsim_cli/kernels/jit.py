@@ -1,0 +1,147 @@
+"""numba, configured once for every kernel: the on-disk cache and the first-run notice.
+
+`kernel` is `numba.njit(cache=True)` without fastmath: the compiled code keeps IEEE
+semantics (no reassociation, no FMA contraction), so results are bit-identical across
+runs, across the CPUs that run the same x86-64 code, and with the JIT off.
+
+Cache: compiled machine code is kept in `cache_dir()`: $VRSIM_CACHE_DIR, else
+$NUMBA_CACHE_DIR when the user set it, else $XDG_CACHE_HOME/vrsim/numba (default
+~/.cache/vrsim/numba). numba keys each entry by the source file's timestamp, the
+argument types and the CPU, so an upgrade or another machine recompiles by itself. When
+that folder cannot be created or written, kernels are compiled in memory for the run
+(a few seconds each time) and `cache_note()` says why.
+
+First run: the first compilation of a run prints one line on stderr ("compiling ...") and
+`compile_report()` gives the seconds spent compiling, which `vrsim run` prints after it.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+_CACHE: dict = {}  # "dir": Path | None, "note": str | None
+
+
+def _default_dir() -> Path:
+    if os.environ.get("VRSIM_CACHE_DIR"):
+        return Path(os.environ["VRSIM_CACHE_DIR"])
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return Path(os.environ["NUMBA_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "vrsim" / "numba"
+
+
+def _writable(folder: Path) -> bool:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".probe-"):
+            pass
+        return True
+    except OSError:
+        return False
+
+
+def _configure() -> None:
+    """Point numba's cache at our folder before numba is imported."""
+    if "dir" in _CACHE:
+        return
+    folder = _default_dir()
+    if _writable(folder):
+        _CACHE["dir"], _CACHE["note"] = folder, None
+        os.environ["NUMBA_CACHE_DIR"] = str(folder)
+    else:
+        _CACHE["dir"] = None
+        _CACHE["note"] = (f"the kernel cache folder {folder} is not writable: kernels are "
+                          f"compiled for this run only (set VRSIM_CACHE_DIR to a writable "
+                          f"folder to keep them)")
+
+
+def cache_dir() -> Path | None:
+    """The folder compiled kernels are cached in, or None when none is writable."""
+    _configure()
+    return _CACHE["dir"]
+
+
+def cache_note() -> str | None:
+    """Why kernels are not cached on disk, or None when they are."""
+    _configure()
+    return _CACHE["note"]
+
+
+_configure()
+
+
+def _import_numba():
+    """numba, initialised without BLAS. numba's CPU target looks for BLAS through
+    scipy.linalg.cython_blas when it first compiles or loads a kernel (numba/np/
+    arraymath.py), which imports all of scipy.linalg (~0.2-0.5 s of every run's start-up)
+    only to enable np.dot and @ inside kernels, which ours must not use: their results
+    would depend on the machine's BLAS. With the import blocked while the target
+    initialises, a kernel that tried would fail to compile; afterwards scipy.linalg
+    imports as usual for whoever needs it (collision proxies)."""
+    blocked = "scipy.linalg.cython_blas" not in sys.modules
+    if blocked:
+        sys.modules["scipy.linalg.cython_blas"] = None
+    try:
+        import numba as nb
+        from numba.core.registry import cpu_target
+
+        cpu_target.target_context.refresh()
+    finally:
+        if blocked and sys.modules.get("scipy.linalg.cython_blas", 0) is None:
+            del sys.modules["scipy.linalg.cython_blas"]
+    return nb
+
+
+numba = _import_numba()
+from numba.core import event  # noqa: E402
+
+
+class _CompileWatch(event.Listener):
+    """Says on stderr when a run first compiles, and adds up the time it takes."""
+
+    def __init__(self):
+        self.depth = 0
+        self.started = 0.0
+        self.seconds = 0.0
+        self.announced = False
+
+    def on_start(self, ev):
+        if self.depth == 0:
+            self.started = time.perf_counter()
+            if not self.announced:
+                self.announced = True
+                where = cache_dir()
+                print("vrsim: compiling kernels for this kind of scene (once"
+                      + (f"; cached in {where})" if where else "; not cached)") + " ...",
+                      file=sys.stderr, flush=True)
+        self.depth += 1
+
+    def on_end(self, ev):
+        self.depth -= 1
+        if self.depth == 0:
+            self.seconds += time.perf_counter() - self.started
+
+
+_WATCH = _CompileWatch()
+event.register("numba:compile", _WATCH)
+
+JIT_DISABLED = bool(numba.config.DISABLE_JIT)
+
+
+def compile_report() -> float:
+    """Seconds spent compiling kernels in this process so far (0: all came from the cache)."""
+    return _WATCH.seconds
+
+
+def kernel(fn=None, *, inline: str = "never"):
+    """Compile `fn` with numba: cached on disk, no fastmath, no parallel (fixed order).
+    `inline="always"` for small helpers (3-vector algebra) that should cost nothing."""
+    def wrap(f):
+        return numba.njit(cache=_CACHE["dir"] is not None, fastmath=False, inline=inline,
+                          error_model="numpy", nogil=True)(f)
+    return wrap if fn is None else wrap(fn)
