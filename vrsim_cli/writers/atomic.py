@@ -9,13 +9,15 @@ target is refused), and a replaced file keeps its permissions.
 The temporary file `.NAME.XXXXXXXX.partial` is locked while it is written; temporary files
 of the same target left by killed runs (unlocked and older than a minute) are removed when
 the next run opens the target. `-o -` (`STDOUT`) writes straight to standard output:
-nothing to rename, nothing to keep on failure.
+nothing to rename, nothing to keep on failure (MCAP goes through an unnamed temporary file
+first: its writer seeks back, a pipe cannot).
 """
 
 from __future__ import annotations
 
 import errno
 import os
+import shutil
 import stat
 import sys
 import tempfile
@@ -58,7 +60,10 @@ class _Stdout:
 class AtomicFile:
     """A binary file that appears at `path` only when `commit()` succeeds."""
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike, seekable: bool = False):
+        """`seekable`: the writer seeks back (the Foxglove SDK's MCAP writer does). A file
+        on disk is; for standard output the data then goes to an unnamed temporary file
+        first, copied out at `commit` (a pipe cannot seek)."""
         self.path = Path(path)
         self.done = False
         self.synced = False
@@ -66,6 +71,12 @@ class AtomicFile:
         if self.stream:
             self.tmp_path = None
             self.file = _Stdout()
+            if seekable:
+                try:
+                    self.file = tempfile.TemporaryFile()
+                except OSError as exc:
+                    raise OutputError(f"cannot write to standard output: no temporary file "
+                                      f"({exc.strerror})") from None
             return
         problem = file_target_problem(self.path)
         if problem is not None:
@@ -105,6 +116,11 @@ class AtomicFile:
             return
         if self.stream:
             try:
+                if not isinstance(self.file, _Stdout):  # the seekable stand-in: copy it out
+                    spool, self.file = self.file, _Stdout()
+                    with spool:
+                        spool.seek(0)
+                        shutil.copyfileobj(spool, self.file, 1 << 20)
                 self.file.flush()
             except OSError as exc:
                 self.done = True
@@ -162,7 +178,8 @@ class AtomicFile:
         self.done = True
         if self.stream:
             try:
-                self.file.flush()
+                # what was written stays written; the seekable stand-in is dropped unread
+                self.file.flush() if isinstance(self.file, _Stdout) else self.file.close()
             except OSError:
                 pass
             return
