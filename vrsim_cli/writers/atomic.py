@@ -60,10 +60,7 @@ class _Stdout:
 class AtomicFile:
     """A binary file that appears at `path` only when `commit()` succeeds."""
 
-    def __init__(self, path: str | os.PathLike, seekable: bool = False):
-        """`seekable`: the writer seeks back (the Foxglove SDK's MCAP writer does). A file
-        on disk is; for standard output the data then goes to an unnamed temporary file
-        first, copied out at `commit` (a pipe cannot seek)."""
+    def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         self.done = False
         self.synced = False
@@ -71,12 +68,6 @@ class AtomicFile:
         if self.stream:
             self.tmp_path = None
             self.file = _Stdout()
-            if seekable:
-                try:
-                    self.file = tempfile.TemporaryFile()
-                except OSError as exc:
-                    raise OutputError(f"cannot write to standard output: no temporary file "
-                                      f"({exc.strerror})") from None
             return
         problem = file_target_problem(self.path)
         if problem is not None:
@@ -91,6 +82,18 @@ class AtomicFile:
         lock(fd)
         self.tmp_path = Path(tmp)
         self.file = os.fdopen(fd, "wb")
+
+    def seekable(self) -> "AtomicFile":
+        """For a writer that seeks back (the Foxglove SDK's MCAP writer): a file on disk
+        is seekable; standard output is a pipe, so the data goes to an unnamed temporary
+        file first, copied out at `commit`. Call before the first write."""
+        if self.stream and isinstance(self.file, _Stdout):
+            try:
+                self.file = tempfile.TemporaryFile()
+            except OSError as exc:
+                raise OutputError(f"cannot write to standard output: no temporary file "
+                                  f"({exc.strerror})") from None
+        return self
 
     def write(self, data: bytes) -> None:
         try:
