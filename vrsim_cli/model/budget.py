@@ -26,7 +26,8 @@ from __future__ import annotations
 MAX_RUN_MB = 900  # the estimate's limit; with the terms' margins the peak stays < 1 GB
 BASE_MB = 100  # Python, numpy, the scene: a small run's peak
 BODY_KB = {"mcap": 6.0, "csv": 2.5, "tum": 2.5, None: 2.5}  # per body or particle
-PIXEL_B = 32  # per pixel of a frame (RGBA buffer, the flipped copy, PNG rows)
+PIXEL_B = 44  # per pixel of a frame (RGBA buffer, the flipped copy, PNG rows, labels);
+# measured 41 B with an MP4 (tests/test_memory.py: 8192 x 2959 px peaked at 1108 MB)
 VIDEO_MB = 60  # the encoder
 TRIANGLE_B = 700  # per triangle of every mesh body
 PAIR_KB = {"mcap": 5.0, None: 2.5}  # per pair of colliding bodies starting at one point
