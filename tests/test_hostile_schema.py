@@ -246,34 +246,12 @@ def check(doc) -> None:
         originals = {p.name: p.read_bytes() for p in work.iterdir()
                      if p.is_file() and not p.is_symlink() and p.name != "fifo"}
         runner = CliRunner()
-        result = runner.invoke(cli, ["validate", str(scene)], catch_exceptions=False)
-        assert result.exit_code in (0, 2), result.output
-        located(result, scene)
-        codes = [result.exit_code]
-        if result.exit_code == 0:
-            STATS["valid"] += 1
-            result = runner.invoke(cli, ["run", str(scene), "-q", "--duration", "0.02",
-                                         "--dt", "0.01"], catch_exceptions=False)
-            assert result.exit_code in (0, 1, 2), result.output
-            located(result, scene)
-            codes.append(result.exit_code)
-            STATS["ran"] += 1
-            out = (doc.get("output") or {}) if isinstance(doc.get("output"), dict) else {}
-            target = work / str(out.get("file", "")) if out.get("file") else None
-            fmt = out.get("format") or {".csv": "csv", ".mcap": "mcap"}.get(
-                target.suffix if target is not None else "")
-            changed = target is not None and target.is_file() and \
-                target.read_bytes() != originals.get(target.name)
-            if result.exit_code in (0, 1) and target is not None and target.exists() and \
-                    not target.is_symlink() and target.resolve().is_relative_to(work) and \
-                    (changed or fmt == "tum"):  # exit 1 may keep the previous file
-                if fmt == "tum" and any(target.glob("*.tum")):
-                    read_trajectory(target)  # complete: it reads back
-                elif fmt in ("csv", "mcap") and target.is_file():
-                    copy = root / f"written.{fmt}"  # read by its format, whatever its name
-                    copy.write_bytes(target.read_bytes())
-                    read_trajectory(copy)
-                    copy.unlink()
+        here = os.getcwd()
+        os.chdir(work)  # a scene's outputs are relative to the current folder: its own here
+        try:
+            codes = run_scene(runner, doc, scene, work, root, originals)
+        finally:
+            os.chdir(here)
         partials = [str(p) for p in root.rglob("*.partial")]
         assert not partials, partials
         assert sorted(p.name for p in root.iterdir()) == before_root
@@ -283,6 +261,40 @@ def check(doc) -> None:
     STATS["codes"][key] = STATS["codes"].get(key, 0) + 1
     STATS["examples"] += 1
     STATS["seconds"] += time.perf_counter() - start
+
+
+def run_scene(runner, doc, scene: Path, work: Path, root: Path, originals: dict) -> list:
+    """`vrsim validate`, then `vrsim run` when it is valid, in the scene's folder; the exit
+    codes. An output written reads back."""
+    result = runner.invoke(cli, ["validate", str(scene)], catch_exceptions=False)
+    assert result.exit_code in (0, 2), result.output
+    located(result, scene)
+    codes = [result.exit_code]
+    if result.exit_code == 0:
+        STATS["valid"] += 1
+        result = runner.invoke(cli, ["run", str(scene), "-q", "--duration", "0.02",
+                                     "--dt", "0.01"], catch_exceptions=False)
+        assert result.exit_code in (0, 1, 2), result.output
+        located(result, scene)
+        codes.append(result.exit_code)
+        STATS["ran"] += 1
+        out = (doc.get("output") or {}) if isinstance(doc.get("output"), dict) else {}
+        target = work / str(out.get("file", "")) if out.get("file") else None
+        fmt = out.get("format") or {".csv": "csv", ".mcap": "mcap"}.get(
+            target.suffix if target is not None else "")
+        changed = target is not None and target.is_file() and \
+            target.read_bytes() != originals.get(target.name)
+        if result.exit_code in (0, 1) and target is not None and target.exists() and \
+                not target.is_symlink() and target.resolve().is_relative_to(work) and \
+                (changed or fmt == "tum"):  # exit 1 may keep the previous file
+            if fmt == "tum" and any(target.glob("*.tum")):
+                read_trajectory(target)  # complete: it reads back
+            elif fmt in ("csv", "mcap") and target.is_file():
+                copy = root / f"written.{fmt}"  # read by its format, whatever its name
+                copy.write_bytes(target.read_bytes())
+                read_trajectory(copy)
+                copy.unlink()
+    return codes
 
 
 def located(result, scene: Path) -> None:
