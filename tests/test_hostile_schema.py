@@ -29,7 +29,7 @@ from pathlib import Path
 
 import yaml
 from click.testing import CliRunner
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from test_hostile_input import _assert_located
@@ -307,6 +307,15 @@ def located(result, scene: Path) -> None:
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
                                  HealthCheck.filter_too_much, HealthCheck.large_base_example])
 @given(scenes())
+# The generator reaches every key, but a few nested optional ones only rarely (1000
+# scenes of some seeds missed them): one scene that has them keeps the coverage check
+# below from depending on the seed.
+@example({"vrsim": 1, "name": "rare", "duration": 0.02, "dt": 0.01, "bodies": [
+    {"name": "ground", "type": "static", "shape": {"type": "plane", "normal": [0, 1, 0],
+                                                   "offset": 0.5}},
+    {"name": "cart", "type": "kinematic", "keyframes": {"position": {
+        "times": [0.0, 1.0], "values": [[0, 1, 0], [1, 1, 0]],
+        "extrapolation": {"before": "clamp", "after": "ping-pong"}}}}]})
 def test_scenes_generated_from_the_schema_fail_cleanly(doc):
     check(doc)
 
