@@ -101,7 +101,7 @@ vrsim: 1
 duration: 1.0
 frame_rate: 50
 dt: 0.01
-bodies: [{name: rocket, mass: 1.0e-10, forces: [{force: [1.0e300, 0, 0], start: 0.5}]}]
+bodies: [{name: rocket, mass: 1.0e-9, forces: [{force: [1.0e15, 0, 0], start: 0.5}]}]
 """)
     sim = vrsim_cli.simulate(model)
     with pytest.raises(SimulationError, match="rocket"):

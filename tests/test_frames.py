@@ -85,6 +85,7 @@ output:
 """
 
 
+@pytest.mark.osmesa
 def test_run_with_frames_writes_every_nth_frame_at_the_asked_size(invoke, write_scene,
                                                                    tmp_path):
     out = tmp_path / "frames"
@@ -105,6 +106,7 @@ def test_run_with_frames_writes_every_nth_frame_at_the_asked_size(invoke, write_
     assert "\nrender " in result.stdout  # its own stage in the profile
 
 
+@pytest.mark.osmesa
 def test_scene_frames_dir_is_relative_to_the_current_folder(invoke, write_scene, tmp_path):
     scene = write_scene(STATIC.replace("every: 3", "every: 5, dir: shots"))
     assert invoke("run", scene, "-q").exit_code == 0
@@ -171,6 +173,7 @@ print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in ("OpenGL", 
     assert json.loads(out.stdout) == []
 
 
+@pytest.mark.osmesa
 def test_a_frame_that_cannot_be_written_fails_the_run_cleanly(invoke, write_scene, tmp_path,
                                                               monkeypatch):
     from vrsim_cli.errors import OutputError
@@ -194,6 +197,7 @@ def test_frames_must_be_a_folder(invoke, write_scene, tmp_path):
     assert result.exit_code == 2 and "is a file" in result.stderr
 
 
+@pytest.mark.osmesa
 def test_same_scene_gives_identical_frames(invoke, write_scene, tmp_path):
     scene = write_scene(STATIC)
     for folder in ("a", "b"):
@@ -204,6 +208,7 @@ def test_same_scene_gives_identical_frames(invoke, write_scene, tmp_path):
     assert all(x.read_bytes() == y.read_bytes() for x, y in zip(a, b))
 
 
+@pytest.mark.osmesa
 def test_the_observer_is_the_default_camera(invoke, write_scene, tmp_path):
     # The observer stands at (2, 1, 5) looking along -z; the red sphere at (0, 1, 0) is 2 m
     # to its left at 5 m depth, so the pinhole camera puts its centre at
@@ -230,6 +235,7 @@ def test_the_observer_is_the_default_camera(invoke, write_scene, tmp_path):
     assert image[h // 2, w // 2][1] > 200  # background, not red
 
 
+@pytest.mark.osmesa
 def test_frames_show_keyframed_colours_and_scales(invoke, write_scene, tmp_path):
     # A sphere keyframed from red (t = 0) to green (t = 1 s), and scaled by 2: the centre
     # pixel is red in the first image and green in the last; twice the radius covers a

@@ -48,6 +48,7 @@ RED_AT = [1.3, 1.9, -0.5]
 RED_RADIUS = 0.25
 
 
+@pytest.mark.osmesa
 def test_red_sphere_appears_at_its_projected_pixel():
     _, image = render(scene(f"{{name: ball, type: static, shape: {{type: sphere, radius: "
                             f"{RED_RADIUS}}}, position: {RED_AT}, color: [1, 0, 0]}}"))
@@ -76,6 +77,7 @@ def test_red_sphere_appears_at_its_projected_pixel():
         np.testing.assert_allclose(pixel, BACKGROUND, atol=BACKGROUND_TOL)
 
 
+@pytest.mark.osmesa
 def test_a_camera_given_per_image_moves_the_view():
     from vrsim_cli.maths.camera import Camera
     model = compile_model(parse_scene(scene(
@@ -95,6 +97,7 @@ def test_a_camera_given_per_image_moves_the_view():
         assert abs(cols.mean() + 0.5 - x) < 1.0 and abs(rows.mean() + 0.5 - y) < 1.0
 
 
+@pytest.mark.osmesa
 def test_box_capsule_and_cylinder_show_their_colours():
     bodies = {
         "box": ("{type: box, size: [0.4, 0.3, 0.5]}", [0.2, 1.3, 0.0], [0, 1, 0], 1),
@@ -112,6 +115,7 @@ def test_box_capsule_and_cylinder_show_their_colours():
         assert all(pixel[c] == 0 for c in off), (name, pixel)
 
 
+@pytest.mark.osmesa
 def test_mesh_shapes_are_drawn_through_trimesh(tmp_path):
     stl = tmp_path / "tetra.stl"
     corners = np.array([[0.3, -0.2, 0.2], [-0.3, -0.2, 0.2], [0, -0.2, -0.3], [0, 0.3, 0]])
@@ -141,6 +145,7 @@ def test_mesh_shapes_are_drawn_through_trimesh(tmp_path):
     (3, "{type: sphere, radius: 0.3}", [2, 1, -1]),
     (2, "{type: box, size: [0.5, 0.5]}", [3, 4]),
 ])
+@pytest.mark.osmesa
 def test_default_camera_frames_a_lone_body_at_the_image_centre(dimension, shape, position):
     text = scene(f"{{name: b, type: static, shape: {shape}, position: {position}, "
                  f"color: [1, 0, 0]}}").replace("bodies:", f"dimension: {dimension}\nbodies:")
@@ -152,6 +157,7 @@ def test_default_camera_frames_a_lone_body_at_the_image_centre(dimension, shape,
         assert camera.forward == pytest.approx((0, 0, -1))
 
 
+@pytest.mark.osmesa
 def test_particles_appear_from_their_emission_on():
     text = scene("{name: wall, type: static, shape: {type: box, size: [0.1, 0.1, 0.1]}, "
                  "position: [0, 1, 0]}")
@@ -175,6 +181,7 @@ def test_particles_appear_from_their_emission_on():
     assert after > 1.5 * before  # now the second one too
 
 
+@pytest.mark.osmesa
 def test_time_overlay_is_drawn_top_left_and_only_there():
     body = ("{name: b, type: static, shape: {type: sphere, radius: 0.2}, "
             "position: [1, 1.6, 0]}")
@@ -203,6 +210,7 @@ def test_any_text_can_be_drawn():
 
 
 
+@pytest.mark.osmesa
 def test_missing_pyopengl_is_reported_with_the_install_commands(monkeypatch):
     model = compile_model(parse_scene(scene("{name: b, mass: 1}")))
     monkeypatch.setitem(sys.modules, "OpenGL", None)  # as if PyOpenGL were not installed

@@ -34,15 +34,17 @@ def test_run_json_is_the_only_stdout_and_matches_the_run(invoke, write_scene, tm
 
 
 def test_a_failed_run_reports_json_too(invoke, write_scene, tmp_path):
+    # the largest force on the smallest mass a scene may give (scene/limits): 1e24 m/s^2
+    # moves it 1e20 m in one step, past the blow-up check's 1e12 m
     scene = write_scene(BALL.replace(
-        "bodies: [", "bodies: [{name: rocket, mass: 1.0e-10, "
-                     "forces: [{force: [1.0e300, 0, 0], start: 0.5}]}, "))
+        "bodies: [", "bodies: [{name: rocket, mass: 1.0e-9, "
+                     "forces: [{force: [1.0e15, 0, 0], start: 0.5}]}, "))
     result = invoke("run", scene, "-o", tmp_path / "o.csv", "--json")
     assert result.exit_code == 1
     report = json.loads(result.stdout)
     assert report["ok"] is False and report["body"] == "rocket"
     assert report["failed_at_s"] == pytest.approx(0.51)
-    assert "not finite" in report["error"]
+    assert "moved more than 1e+12 m from the origin" in report["error"]
 
 
 def test_one_step_reads_as_one_step(invoke, write_scene):

@@ -10,6 +10,7 @@ import pytest
 from test_frames import STATIC, read_png
 
 
+@pytest.mark.osmesa
 @pytest.mark.parametrize("name", ["run.mp4", "run.gif"])
 def test_video_holds_every_image_at_the_frame_rate(invoke, write_scene, tmp_path, name):
     import imageio.v2 as imageio

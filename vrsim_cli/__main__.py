@@ -1,6 +1,26 @@
-"""`python -m vrsim_cli` is the same as the `vrsim` command."""
+"""The `vrsim` command's entry point; `python -m vrsim_cli` is the same command.
 
-from vrsim_cli.cli import main
+The signal handlers are installed before anything else is imported (click, the scene
+loader, numpy): a SIGINT or SIGTERM from the first instruction of vrsim on exits cleanly
+with 130 or 143 (see `vrsim_cli.interrupts`), never with a traceback or silently.
+"""
+
+from vrsim_cli import interrupts
+
+
+def main() -> None:
+    interrupts.install()
+    try:
+        from vrsim_cli.cli import main as cli_main
+
+        cli_main()
+    except interrupts.Interrupted as exc:  # during the import of the command itself
+        import sys
+
+        sys.stderr.write(f"interrupted by {interrupts.name(exc.signum)}; nothing was "
+                         f"written\n")
+        sys.exit(exc.exit_code)
+
 
 if __name__ == "__main__":
     main()

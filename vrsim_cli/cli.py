@@ -11,15 +11,14 @@ import json
 import math
 import signal
 import sys
-import threading
 import time
 from functools import wraps
 from pathlib import Path
 
 import click
 
-from vrsim_cli import __version__
-from vrsim_cli.errors import EXIT_INPUT, InputError, SimulationError, VrsimError
+from vrsim_cli import __version__, interrupts
+from vrsim_cli.errors import EXIT_INPUT, InputError, SimulationError, VrsimError, printable
 from vrsim_cli.scene.spec import scene_schema
 
 # Choices come from the shipped schema (cheap to read), so `vrsim --help` need not import
@@ -42,7 +41,7 @@ def _reports_errors(command):
                 click.echo(f"error: {line}", err=True)
             sys.exit(exc.exit_code)
         except VrsimError as exc:
-            click.echo(f"error: {exc}", err=True)
+            click.echo(f"error: {printable(str(exc))}", err=True)  # may quote a name
             sys.exit(exc.exit_code)
         except KeyboardInterrupt:  # Ctrl-C outside the loop: nothing was written yet
             click.echo("interrupted", err=True)
@@ -90,25 +89,24 @@ def cli():
 
 
 class _Signals(contextlib.AbstractContextManager):
-    """Turn SIGINT/SIGTERM into a flag the loop polls once per frame, so the output is
-    finalised instead of cut off. Only the main thread can install handlers."""
-
-    def __init__(self):
-        self.received: int | None = None
-        self.previous: dict = {}
+    """SIGINT/SIGTERM become a flag the loop polls once per frame, so the output is
+    finalised instead of cut off; a second signal discards it (see `interrupts`). The
+    `vrsim` entry point has installed the handlers already; in-process callers (tests)
+    get them here, and their own back afterwards."""
 
     def __enter__(self):
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self.previous[sig] = signal.signal(sig, self._handle)
+        self.previous = interrupts.install()
+        self.block = interrupts.deferred()
+        self.block.__enter__()
         return self
 
-    def _handle(self, signum, _frame):
-        self.received = signum
+    @property
+    def received(self) -> int | None:
+        return interrupts.received
 
     def __exit__(self, *exc):
-        for sig, handler in self.previous.items():
-            signal.signal(sig, handler)
+        self.block.__exit__(*exc)
+        interrupts.restore(self.previous)
         return False
 
 
@@ -143,31 +141,42 @@ class _Progress:
 
 
 def _output_target(output: str | None, fmt: str | None):
-    """(path, format) from -o/--format, or None. Usage errors exit 2."""
+    """(path, format) from -o/--format, or None. Usage errors exit 2. `-o -` writes CSV
+    (or MCAP with --format mcap) to standard output."""
     from vrsim_cli.model.model import output_format_for
+    from vrsim_cli.scene.files import STDOUT, about, file_target_problem, tum_folder_problem
 
     if output is None:
         if fmt:
             raise click.UsageError("--format needs -o/--output")
         return None
+    if output == STDOUT:
+        if fmt == "tum":
+            raise click.UsageError("-o - writes csv or mcap to standard output; tum output "
+                                   "is a folder")
+        return Path(STDOUT), fmt or "csv"
     path = Path(output)
     fmt = output_format_for(path, fmt)
+    shown = printable(output)
     if fmt is None:
-        raise click.UsageError(f"cannot tell the format of '{output}': use a .mcap or .csv "
+        raise click.UsageError(f"cannot tell the format of '{shown}': use a .mcap or .csv "
                                f"suffix, or --format tum with a folder")
-    if not path.parent.is_dir():
-        raise click.UsageError(f"folder '{path.parent}' does not exist")
-    if fmt != "tum" and path.is_dir():
-        raise click.UsageError(f"'{output}' is a folder; give a file name")
-    if fmt == "tum" and path.exists() and not path.is_dir():
-        raise click.UsageError(f"'{output}' is a file; --format tum writes a folder")
+    try:
+        if fmt == "tum" and path.exists() and not path.is_dir() and not path.is_symlink():
+            raise click.UsageError(f"'{shown}' is a file; --format tum writes a folder")
+    except (OSError, ValueError):
+        pass  # a name too long or holding NUL: said below
+    problem = tum_folder_problem(path) if fmt == "tum" else file_target_problem(path)
+    if problem is not None:
+        raise click.UsageError(printable(about(output, problem)))
     return path, fmt
 
 
 @cli.command()
 @click.argument("scene_file", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(), help="Trajectory file: .mcap or .csv, or a "
-              "folder with --format tum. Overrides the scene's output.file.")
+@click.option("-o", "--output", type=click.Path(), help="Trajectory file: .mcap or .csv, a "
+              "folder with --format tum, or - for standard output. Overrides the scene's "
+              "output.file.")
 @click.option("--format", "fmt", type=click.Choice(OUTPUT_FORMATS), help="Output format "
               "(default: from the suffix).")
 @click.option("--duration", type=POSITIVE, help="Simulated time in s (overrides the scene).")
@@ -203,7 +212,8 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     from vrsim_cli.writers import open_writer
 
     target = _output_target(output, fmt)
-    if target is not None and target[0].resolve() == Path(scene_file).resolve():
+    if target is not None and str(target[0]) != "-" and \
+            target[0].resolve() == Path(scene_file).resolve():
         raise click.UsageError("the output would overwrite the scene file")
     scene = load_scene(scene_file).with_overrides({
         ("duration",): (duration, "--duration"), ("dt",): (dt, "--dt"),
@@ -211,72 +221,92 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         ("output", "frames", "dir"): (frames_dir, "--frames"),
         ("tolerance",): (tolerance, "--tolerance")})
     model = compile_model(scene, output_override=target)
-    frames = _open_frames(model, video)  # before simulating: a missing OSMesa fails at once
-    say = (lambda *a, **k: None) if quiet else click.echo
+    to_stdout = model.output.path is not None and str(model.output.path) == "-"
+    # With the trajectory on standard output, the summary goes to stderr.
+    say = (lambda *a, **k: None) if quiet else \
+        (lambda text, err=False: click.echo(text, err=err or to_stdout))
     for note in model.notes:
-        say(f"note: {note}", err=True)
+        say(f"note: {printable(note)}", err=True)
     if model.dt != model.dt_requested:
         say(f"note: dt = {model.dt_requested:g} s does not divide the frame interval "
             f"1/{model.frame_rate:g} s; using dt = {model.dt:.6g} s "
             f"({model.steps_per_frame} steps per frame)", err=True)
+    if as_json and to_stdout:
+        raise click.UsageError("--json prints the summary on standard output; -o - writes "
+                               "the trajectory there: give -o a file")
     prepare_kernels(model, say)  # compiled once after an install; before any output
     server = None
     if live:
         from vrsim_cli.writers.live import LiveServer
         server = LiveServer(model.name)
-    writer = open_writer(model, model.output.path, model.output.format, live=server)
-    if server is not None:
-        try:
-            server.start(live_port)  # after the writer made the channels
-        except BaseException:
-            writer.abort()
-            raise
-        click.echo(f"live: serving {model.name} on {server.url} (Foxglove: Open connection, "
-                   f"Foxglove WebSocket); waiting for a client, Ctrl-C to stop", err=True)
     progress = _Progress(model, enabled=not quiet and not live and not as_json)
     state = make_state(model)
     failure = None
-    with _Signals() as signals:
+    writer = frames = None
+    closed = []  # what was finalised or discarded already
+
+    def abort() -> None:
+        """Discard what is not finalised yet (any previous output stays)."""
+        progress.clear()
+        for sink in (writer, frames, server):
+            if sink is not None and sink not in closed:
+                closed.append(sink)
+                if sink is server:
+                    sink.close(linger=False)
+                else:
+                    sink.abort()
+
+    with _Signals() as signals:  # from before the first output file is opened
         stop = lambda: signals.received is not None  # noqa: E731
-        if server is not None and not server.wait_for_client(stop):
-            for sink in (writer, frames, server):  # no client came: nothing to keep
-                if sink is not None:
-                    sink.abort() if sink is not server else sink.close(linger=False)
-            click.echo("interrupted before a client connected; nothing written", err=True)
-            sys.exit(128 + signals.received)
         try:
-            result = run_loop(model, state, writer, realtime=realtime or live,
-                              should_stop=stop, on_frame=progress, render=frames)
-        except SimulationError as exc:
-            failure = exc  # finalise the output up to the last good state, then report
-        except BaseException:  # an output error, or a bug: keep any previous file
-            progress.clear()
-            if writer is not None:
-                writer.abort()
-            if frames is not None:
-                frames.abort()
-            raise
-        finally:
-            progress.clear()
+            try:
+                # before simulating: a missing OSMesa fails at once
+                frames = _open_frames(model, video)
+                writer = open_writer(model, model.output.path, model.output.format,
+                                     live=server)
+                if server is not None:
+                    server.start(live_port)  # after the writer made the channels
+                    click.echo(f"live: serving {printable(model.name)} on {server.url} "
+                               f"(Foxglove: Open connection, Foxglove WebSocket); waiting for "
+                               f"a client, Ctrl-C to stop", err=True)
+                    if not server.wait_for_client(stop):  # no client came: nothing to keep
+                        abort()
+                        click.echo("interrupted before a client connected; nothing written",
+                                   err=True)
+                        sys.exit(128 + signals.received)
+                result = run_loop(model, state, writer, realtime=realtime or live,
+                                  should_stop=stop, on_frame=progress, render=frames)
+            except SimulationError as exc:
+                failure = exc  # finalise the output up to the last good state, then report
+            finally:
+                progress.clear()
             if server is not None:
                 server.close(linger=failure is None)
-        if frames is not None:  # still under the handlers: a signal now cannot cut it off
-            if len(frames.states) > 1 and not as_json:  # drawn now: the camera needs the run
-                say(f"rendering {len(frames.states)} frames ...", err=True)
-            frames.close()
-        if writer is not None:
-            try:
+                closed.append(server)
+            # still under the handlers: a signal now cannot cut the output off
+            if frames is not None:
+                if len(frames.states) > 1 and not as_json:  # drawn now: the camera needs the run
+                    say(f"rendering {len(frames.states)} frames ...", err=True)
+                frames.close()
+                closed.append(frames)
+            if writer is not None:
                 writer.close()
-            except VrsimError:
-                writer.abort()
-                raise
+                closed.append(writer)
+        except interrupts.Interrupted as exc:  # a second signal: discard, keep the previous
+            abort()
+            click.echo(f"interrupted twice by {interrupts.name(exc.signum)}: output "
+                       f"discarded, any previous output kept", err=True)
+            sys.exit(exc.exit_code)
+        except BaseException:  # an output error, or a bug: keep any previous file
+            abort()
+            raise
     from vrsim_cli.text import plural
     from vrsim_cli.tools.run_report import failure_summary, format_run, run_summary
 
     if failure is not None:
-        kept = f"; output up to the last good state kept in {model.output.path}" \
+        kept = f"; output up to the last good state kept in {_shown_path(model)}" \
             if model.output.path is not None else ""
-        click.echo(f"error: {failure}{kept}", err=True)
+        click.echo(f"error: {printable(str(failure))}{kept}", err=True)  # names a body
         if as_json:
             click.echo(json.dumps(failure_summary(model, failure), indent=2))
         sys.exit(failure.exit_code)
@@ -290,12 +320,17 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
             say(line)
     if frames is not None and not as_json:
         say(f"frames: {plural(frames.images, 'image')} of {model.frames.width}x"
-            f"{model.frames.height} px -> {model.frames.dir}"
-            + (f", video {video}" if video else "") + _subsampled(frames))
+            f"{model.frames.height} px -> {printable(str(model.frames.dir))}"
+            + (f", video {printable(video)}" if video else "") + _subsampled(frames))
     if signals.received is not None:  # during the loop, or while the output was finalised
         click.echo(f"interrupted by {interrupted} at t = {result.state.t:.6g} s; output "
                    f"finalised", err=True)
         sys.exit(128 + signals.received)
+
+
+def _shown_path(model) -> str:
+    path = str(model.output.path)
+    return "standard output" if path == "-" else printable(path)
 
 
 def _open_frames(model, video: str | None):
@@ -311,8 +346,23 @@ def _open_frames(model, video: str | None):
 
     spec = model.frames
     if video is not None:
+        from vrsim_cli.model.budget import MAX_RUN_MB, gif_mb
+        from vrsim_cli.scene.files import about, file_target_problem
         from vrsim_cli.writers.video import check_video
+
+        problem = file_target_problem(Path(video))  # not a device, FIFO, link or folder
+        if problem is not None:
+            raise click.UsageError(printable(f"--video {about(video, problem)}"))
         check_video(Path(video))
+        if Path(video).suffix.lower() == ".gif":  # Pillow keeps a GIF's images in memory
+            images = -(-model.n_frames // spec.every) + 1
+            held = gif_mb(images, spec.width * spec.height)
+            if held > MAX_RUN_MB / 2:
+                raise click.UsageError(
+                    f"--video {printable(video)}: a GIF keeps every image in memory until "
+                    f"the run ends: {images} images of {spec.width}x{spec.height} px take "
+                    f"about {held:.0f} MB (vrsim runs up to {MAX_RUN_MB} MB); use .mp4 "
+                    f"(streamed), fewer images (output.frames.every) or smaller frames")
     renderer = open_renderer(model, spec.width, spec.height, spec.camera)
     sink = None
     if video is not None:
@@ -351,11 +401,12 @@ def validate(scene_files, quiet):
             continue
         if not quiet:
             impacts = f", {model.response.impacts} impacts" if model.response else ""
-            click.echo(f"{file}: ok ({plural(model.n_body, 'body')}, {model.duration:g} s in "
-                       f"{plural(model.n_steps, 'step')} of {model.dt:.6g} s, "
+            click.echo(f"{printable(file)}: ok ({plural(model.n_body, 'body')}, "
+                       f"{model.duration:g} s in {plural(model.n_steps, 'step')} of "
+                       f"{model.dt:.6g} s, "
                        f"{model.integrator}{impacts})")
             for note in model.notes:
-                click.echo(f"note: {file}: {note}", err=True)
+                click.echo(f"note: {printable(file)}: {printable(note)}", err=True)
     sys.exit(EXIT_INPUT if failed else 0)
 
 
@@ -376,7 +427,8 @@ def mass_properties(scene_file, as_json):
     if as_json:
         click.echo(json.dumps(rows, indent=2))
     else:
-        click.echo(format_report(rows, int(scene.data.get("dimension", 3))))
+        for line in format_report(rows, int(scene.data.get("dimension", 3))).splitlines():
+            click.echo(printable(line))  # body names come from the scene
 
 
 # ----------------------------------------------------------------------------- schema
@@ -403,6 +455,7 @@ def info(trajectory_file, as_json):
     if as_json:
         click.echo(json.dumps(info_, indent=2))
         return
+    # names, topics and metadata come from the file: format_summary escapes them
     for line in format_summary(info_):
         click.echo(line)
 
@@ -426,16 +479,19 @@ def collision_proxies(scene_file, samples, as_json):
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.scene.spec import load_scene
 
-    report = scene_proxy_report(compile_model(load_scene(scene_file)), samples)
+    try:
+        report = scene_proxy_report(compile_model(load_scene(scene_file)), samples)
+    except ValueError as exc:  # a flat mesh has no hull, so no proxies to compare
+        raise InputError(f"{scene_file}: {exc}") from None
     if as_json:
         click.echo(json.dumps(report, indent=2))
         return
     if not report:
-        click.echo(f"{scene_file}: no mesh bodies, nothing to compare")
+        click.echo(f"{printable(scene_file)}: no mesh bodies, nothing to compare")
         return
     for body in report:
-        click.echo(f"{body['body']} ({Path(body['file']).name}, {body['triangles']} "
-                   f"triangles, uses {body['geometry']}):")
+        click.echo(printable(f"{body['body']} ({Path(body['file']).name}, "
+                             f"{body['triangles']} triangles, uses {body['geometry']}):"))
         click.echo(f"  {'proxy':<7} {'hausdorff m':>12} {'proxy->mesh':>12} "
                    f"{'mesh->proxy':>12} {'volume ratio':>13}")
         for row in body["proxies"]:
@@ -711,7 +767,7 @@ def compare(a, b, atol, rtol, angle_tol, overrides, allow_missing_entities, show
         click.echo(json.dumps(report.as_dict(), indent=2))
     else:
         for line in format_report(report, show_all=show_all):
-            click.echo(line)
+            click.echo(printable(line))  # entity names come from the files
     sys.exit(0 if report.ok else 1)
 
 
@@ -849,7 +905,19 @@ def plot(trajectory_file, output, patterns, scene_file):
 
 
 def main() -> None:
-    cli(prog_name="vrsim")
+    """The `vrsim` command (see `vrsim_cli.__main__.main`, which installs the signal
+    handlers before importing this module)."""
+    interrupts.install()
+    try:
+        cli(prog_name="vrsim")
+    except interrupts.Interrupted as exc:
+        interrupted(exc)
+
+
+def interrupted(exc: "interrupts.Interrupted") -> None:
+    """Report a signal that arrived while nothing was being written, and exit."""
+    sys.stderr.write(f"interrupted by {interrupts.name(exc.signum)}; nothing was written\n")
+    sys.exit(exc.exit_code)
 
 
 if __name__ == "__main__":

@@ -13,6 +13,12 @@ import numpy as np
 from vrsim_cli.maths.spatial import quat_from_matrix
 
 PROXY_SAMPLES = 2000  # points sampled on each surface for the proxy error (plus vertices)
+# What vrsim simulates (the scene's lengths have the same range, scene/limits.py): a mesh
+# beyond these made qhull fail, scipy's bounding sphere report "Improper input", and a
+# million triangles took minutes and gigabytes for collision and MCAP.
+MAX_MESH_TRIANGLES = 100_000  # the obb proxy of 100000 takes ~7 s, of 200000 ~60 s
+MIN_MESH_SIZE_M, MAX_MESH_SIZE_M = 1e-6, 1e6  # the mesh's largest extent, after scale
+FLAT = 1e-9  # a mesh thinner than this fraction of its size in some direction is flat
 
 
 def _trimesh():
@@ -35,29 +41,94 @@ def load_mesh(path: str, scale: float = 1.0):
         raise ValueError(f"mesh '{path}' has no triangles")
     if scale != 1.0:
         mesh = mesh.copy()
-        mesh.apply_scale(scale)
+        with np.errstate(over="ignore", invalid="ignore"):
+            mesh.apply_scale(scale)
+    problem = mesh_problem(mesh)
+    if problem is not None:
+        raise ValueError(f"mesh '{path}' {problem}")
     return mesh
+
+
+def mesh_problem(mesh) -> str | None:
+    """Why vrsim cannot simulate a loaded (and scaled) mesh, or None: too many triangles,
+    a vertex that is not a finite number, or a size outside MIN/MAX_MESH_SIZE_M."""
+    if len(mesh.faces) > MAX_MESH_TRIANGLES:
+        return f"has {len(mesh.faces)} triangles; at most {MAX_MESH_TRIANGLES} are simulated"
+    vertices = np.asarray(mesh.vertices, dtype=float)
+    if not np.isfinite(vertices).all():
+        return "has a vertex that is not a finite number (after scale)"
+    used = vertices[np.unique(np.asarray(mesh.faces))]
+    with np.errstate(over="ignore", invalid="ignore"):
+        size = float((used.max(axis=0) - used.min(axis=0)).max())
+    if not MIN_MESH_SIZE_M <= size <= MAX_MESH_SIZE_M:
+        return (f"is {size:.4g} m across (after scale); vrsim simulates meshes from "
+                f"{MIN_MESH_SIZE_M:g} to {MAX_MESH_SIZE_M:g} m")
+    return None
+
+
+def solid_problem(mesh) -> str | None:
+    """Why a mesh has no solid convex hull (the hull, obb and sphere proxies need one), or
+    None: all its points on one line or in one plane (qhull fails on them)."""
+    points = np.asarray(mesh.vertices, dtype=float)[np.unique(np.asarray(mesh.faces))]
+    centred = points - points.mean(axis=0)
+    spread = np.linalg.svd(centred, compute_uv=False) if len(points) >= 3 else np.zeros(1)
+    if len(spread) < 3 or spread[0] == 0.0 or spread[2] <= FLAT * spread[0]:
+        what = "a point" if len(spread) == 0 or spread[0] == 0.0 else \
+            "a line" if len(spread) < 2 or spread[1] <= FLAT * spread[0] else "a plane"
+        return f"is flat (all its points lie on {what}): it has no solid hull"
+    return None
 
 
 def proxies(mesh) -> dict:
     """Every proxy of a mesh as a dict name -> geom parameters in the mesh (body) frame:
     sphere {centre, radius}; obb {centre, quat, half}; aabb {vertices}; hull {vertices,
-    faces}; mesh {vertices, faces}."""
-    centre, radius = mesh.bounding_sphere.primitive.center, \
-        float(mesh.bounding_sphere.primitive.radius)
-    obb = mesh.bounding_box_oriented.primitive
-    hull = mesh.convex_hull
-    return {
-        "sphere": {"centre": np.asarray(centre, float), "radius": radius},
-        "obb": {"centre": np.asarray(obb.transform[:3, 3], float),
-                "quat": quat_from_matrix(obb.transform[:3, :3]),
-                "half": 0.5 * np.asarray(obb.extents, float)},
-        "aabb": {"vertices": np.asarray(hull.vertices, float)},
-        "hull": {"vertices": np.asarray(hull.vertices, float),
-                 "faces": np.asarray(hull.faces, np.int64)},
-        "mesh": {"vertices": np.asarray(mesh.vertices, float),
-                 "faces": np.asarray(mesh.faces, np.int64)},
-    }
+    faces}; mesh {vertices, faces}. Raises ValueError (with the reason) for a flat mesh,
+    which has none but `mesh`, or when qhull or scipy fail on it."""
+    return _checked(mesh, ("sphere", "obb", "aabb", "hull", "mesh"))
+
+
+def _checked(mesh, names) -> dict:
+    problem = solid_problem(mesh)
+    if problem is not None:
+        raise ValueError(f"the mesh {problem}; use collision geometry 'mesh' (its triangles)")
+    try:
+        return _proxies(mesh, names)
+    except (RuntimeError, ValueError, TypeError, ArithmeticError, IndexError,
+            ImportError) as exc:  # QhullError is a RuntimeError
+        detail = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(f"cannot compute the proxies of the mesh ({detail})") from None
+
+
+def proxy(mesh, name: str) -> dict:
+    """One proxy of `proxies`; the `mesh` itself needs no hull (a flat mesh is fine)."""
+    if name == "mesh":
+        return {"vertices": np.asarray(mesh.vertices, float),
+                "faces": np.asarray(mesh.faces, np.int64)}
+    return _checked(mesh, (name,))[name]
+
+
+def _proxies(mesh, names) -> dict:
+    """The proxies in `names` only: the smallest enclosing sphere and the oriented box of
+    a 200000-triangle mesh take tens of seconds each, and a body needs one of them."""
+    out = {}
+    if "sphere" in names:
+        sphere = mesh.bounding_sphere.primitive
+        out["sphere"] = {"centre": np.asarray(sphere.center, float),
+                         "radius": float(sphere.radius)}
+    if "obb" in names:
+        obb = mesh.bounding_box_oriented.primitive
+        out["obb"] = {"centre": np.asarray(obb.transform[:3, 3], float),
+                      "quat": quat_from_matrix(obb.transform[:3, :3]),
+                      "half": 0.5 * np.asarray(obb.extents, float)}
+    if "aabb" in names or "hull" in names:
+        hull = mesh.convex_hull
+        out["aabb"] = {"vertices": np.asarray(hull.vertices, float)}
+        out["hull"] = {"vertices": np.asarray(hull.vertices, float),
+                       "faces": np.asarray(hull.faces, np.int64)}
+    if "mesh" in names:
+        out["mesh"] = {"vertices": np.asarray(mesh.vertices, float),
+                       "faces": np.asarray(mesh.faces, np.int64)}
+    return out
 
 
 def proxy_surface(mesh, name: str, p: dict):

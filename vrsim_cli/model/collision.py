@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vrsim_cli.maths.meshes import PROXY_SAMPLES, load_mesh, proxies, proxy_errors
+from vrsim_cli.maths.meshes import PROXY_SAMPLES, load_mesh, proxy, proxy_errors
 
 SPHERE, PLANE, BOX, CAPSULE, CYLINDER, CONVEX, MESH = range(7)
 TYPE_NAMES = ("sphere", "plane", "box", "capsule", "cylinder", "convex", "mesh")
@@ -182,7 +182,7 @@ def mesh_geom(body: int, shape: dict, geometry: str) -> dict:
     """The geom row (see CollisionModel) of a mesh body for `geometry`."""
     mesh = load_mesh(shape["path"], float(shape.get("scale", 1.0)))
     geometry = "mesh" if geometry == "exact" else geometry
-    p = proxies(mesh)[geometry]
+    p = proxy(mesh, geometry)  # a flat mesh has its triangles, but no hull
     if geometry == "sphere":
         row = _row(body, SPHERE, geometry)
         row["local_pos"], row["radius"] = p["centre"], p["radius"]

@@ -8,6 +8,7 @@ and `FramesSpec` is None: the run never touches OpenGL.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,6 +53,10 @@ def compile_frames(scene: Scene, problems: list[Problem]) -> FramesSpec | None:
         return None
     folder = scene.resolve_path(at + ("dir",), problems, output=True)
     if folder is None:
+        return None
+    if os.path.lexists(folder) and not folder.is_dir():  # found now, not after the run
+        problems.append(scene.problem(at + ("dir",), f"'{scene.get(at + ('dir',))}' is a "
+                                      f"file, not a folder", "frames go to a folder"))
         return None
     return FramesSpec(dir=folder, every=int(frames.get("every", DEFAULT_FRAME_EVERY)),
                       width=int(frames.get("width", DEFAULT_FRAME_WIDTH)),

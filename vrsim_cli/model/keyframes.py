@@ -67,7 +67,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vrsim_cli.maths.spatial import (quat_from_euler_deg, quat_left_matrix, quat_multiply,
-                               quat_to_matrix)
+                               quat_to_matrix, unit)
 from vrsim_cli.scene.animation import COLOR, DEFAULT_MODE, KB_KEYS, ROTATION, VECTOR, track_issues
 
 ARC_PIECES = 32  # sub-intervals per segment for the arc-length table
@@ -146,8 +146,8 @@ def compile_track(spec: dict, kind: str = VECTOR) -> Track:
         if "euler_deg" in spec:
             quats = np.array([quat_from_euler_deg(e) for e in spec["euler_deg"]])
         else:
-            quats = np.array(spec["values"], dtype=float)
-            quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+            # scaled first: [1e-200, 0, 0, 0] is a rotation too (its plain norm is 0)
+            quats = unit(np.array(spec["values"], dtype=float))
         return _compile_rotation(quats, "slerp" if mode == "linear" else mode, common)
     raw = spec["values"]
     scalar = not isinstance(raw[0], list)

@@ -35,6 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.scene.files import MAX_MESH_BYTES
+
 SHAPES_WITH_MASS = ("sphere", "box", "capsule", "cylinder", "mesh")
 
 
@@ -168,17 +170,13 @@ def shape_inertia(shape: dict, mass: float, dim: int) -> np.ndarray:
 
 def mesh_properties(path: str, scale: float, mass: float | None, density: float | None):
     """(mass, com (3,), inertia (3, 3)) of a closed triangle mesh of uniform density."""
-    try:
-        import trimesh  # optional and heavy: only a mesh body with mass properties needs it
-    except ImportError:  # pragma: no cover - trimesh is a dependency; a broken install
-        raise MassPropertyError(("shape", "file"), "trimesh is needed for the mass "
-                                "properties of a mesh", "reinstall vrsim (trimesh is one of its dependencies)") \
-            from None
-    try:
-        mesh = trimesh.load(path, force="mesh")
-    except Exception as exc:  # trimesh raises many types for unreadable files
-        raise MassPropertyError(("shape", "file"), f"cannot read mesh: {exc}") from None
-    mesh.apply_scale(scale)
+    from vrsim_cli.maths.meshes import load_mesh  # trimesh: only mesh bodies pay for it
+
+    try:  # unreadable, too many triangles, not finite, too small or large
+        mesh = load_mesh(path, scale)
+    except ValueError as exc:
+        raise MassPropertyError(("shape", "file"), str(exc).replace(f"mesh '{path}' ", "the "
+                                                                     "mesh ")) from None
     if not mesh.is_watertight or mesh.volume <= 0:
         raise MassPropertyError(("shape", "file"), "the mesh is not a closed surface, so it "
                                 "has no volume to weigh", "give `inertia` explicitly "
@@ -312,7 +310,8 @@ def scene_report(scene) -> list[dict]:
             continue
         mesh = None
         if (body.get("shape") or {}).get("type") == "mesh":
-            resolved = scene.resolve_path(("bodies", i, "shape", "file"), problems)
+            resolved = scene.input_path(("bodies", i, "shape", "file"), problems,
+                                        MAX_MESH_BYTES)
             mesh = str(resolved) if resolved is not None else None
             if mesh is None:
                 continue

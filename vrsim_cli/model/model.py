@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from vrsim_cli.errors import InputError, Problem
+from vrsim_cli.errors import InputError, Problem, format_key_path
 from vrsim_cli.maths.geometry import ANALYTIC
 from vrsim_cli.maths.spatial import (IDENTITY_QUAT, quat_from_axis_angle, quat_from_euler_deg,
                                quat_normalize, quat_rotating, unit)
@@ -27,6 +28,8 @@ from vrsim_cli.model.animation import Animation, compile_animation
 from vrsim_cli.model.frames import FramesSpec, compile_frames
 from vrsim_cli.model.observer import InputModel, ObserverModel, compile_input, compile_observer
 from vrsim_cli.model.rigid import ADAPTIVE, RigidModel, compile_rigid, rigid_notes
+from vrsim_cli.scene.files import (MAX_MESH_BYTES, about, file_target_problem,
+                                   tum_folder_problem)
 from vrsim_cli.scene.spec import Scene
 
 BODY_DYNAMIC, BODY_KINEMATIC, BODY_STATIC = 0, 1, 2
@@ -39,6 +42,7 @@ DEFAULT_DT = 0.001  # s
 DEFAULT_GRAVITY = (0.0, -9.81, 0.0)  # m/s^2, y up as on the slides
 DEFAULT_PARTICLE_RADIUS = 0.02  # m, drawn size of an emitted particle
 MAX_STEPS = 2_000_000_000  # a run longer than this is a typo, not a plan
+MAX_TUM_ENTITIES = 256  # TUM writes one file per entity (writers/tum_writer.py)
 
 # Ten distinguishable colours for bodies without `color` (RGBA).
 PALETTE = np.array([
@@ -190,6 +194,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
 
     # --- bodies, then emitted particles
     names: list[str] = []
+    triangles: list[tuple] = []  # (body index, triangles) of mesh bodies
     kinds, masses, pos0, vel0, quat0, colors, shapes, emit = [], [], [], [], [], [], [], []
     force_body, force_vec, force_start, force_end = [], [], [], []
     for i, body in enumerate(data.get("bodies") or []):
@@ -205,7 +210,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         colors.append(_color(body.get("color"), len(colors)))
         shapes.append(_shape(body.get("shape"), dim, pos0[-1]))
         if shapes[-1] is not None and shapes[-1]["type"] == "mesh":
-            shapes[-1]["path"] = _existing_file(scene, at + ("shape", "file"), problems)
+            shapes[-1]["path"] = _mesh_file(scene, at + ("shape",), problems, triangles)
         emit.append(0)
         for force in body.get("forces") or []:
             force_body.append(len(names) - 1)
@@ -240,6 +245,17 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
                                                                 DEFAULT_PARTICLE_RADIUS))}
         shapes.extend([sphere] * count)
         emit.extend(particles["emit_step"])
+
+    problems.extend(_overwritten_inputs(scene, output, shapes))
+    problems.extend(_memory_problems(scene, len(names), output, frames, triangles,
+                                     _start_overlaps(scene, kinds, pos0, shapes, emit)))
+    if problems:
+        raise InputError(problems)
+    if output.format == "tum" and output.path is not None:
+        entities = names + (["observer"] if observer is not None else [])
+        problems.extend(_tum_entity_problems(scene, output, output_override, entities))
+        if problems:
+            raise InputError(problems)
 
     collision = response = None
     if data.get("collision") is not None:
@@ -321,6 +337,13 @@ def _output_spec(scene: Scene, out: dict, override, every_steps: int,
     path = scene.resolve_path(("output", "file"), problems, output=True)
     if path is None:
         return OutputSpec(None, None, every_steps, up)
+    # resolve_path follows links; the name the scene gives must not be one itself (the
+    # output would replace the file it points to, or the link)
+    named = os.path.normpath(Path.cwd().resolve() / out["file"])
+    if os.path.islink(named):
+        problems.append(scene.problem(("output", "file"), f"'{out['file']}' is a symbolic "
+                                      f"link; give the file it points to"))
+        return OutputSpec(None, None, every_steps, up)
     fmt = output_format_for(path, out.get("format"))
     if fmt is None:
         problems.append(scene.problem(("output", "file"), f"cannot tell the format of "
@@ -331,11 +354,16 @@ def _output_spec(scene: Scene, out: dict, override, every_steps: int,
 
 
 def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[Problem]:
-    """What would fail only after the whole run, or destroy the input: a missing folder, a
-    file format aimed at a folder, a TUM folder aimed at a file, the scene file itself."""
+    """What would fail only after the whole run, or destroy the input or anything else: a
+    missing folder, a file format aimed at a folder, a TUM folder aimed at a file or at a
+    folder holding other files (the scene's own, say), the scene file itself, a device,
+    FIFO, socket or symbolic link (see scene.files)."""
     at = ("output", "file")
     if scene.file and path == Path(scene.file).resolve():
         return [scene.problem(at, "the output would overwrite the scene file itself")]
+    name = file_target_problem(path) if fmt != "tum" else tum_folder_problem(path)
+    if name is not None and ("name is" in name or "too long" in name):
+        return [scene.problem(at, about(scene.get(at), name))]
     if not path.parent.is_dir():
         return [scene.problem(at, f"folder '{path.parent}' does not exist",
                               "output paths are relative to the current folder")]
@@ -343,16 +371,126 @@ def _output_target_problems(scene: Scene, path: Path, fmt: str | None) -> list[P
         return [scene.problem(at, f"'{scene.get(at)}' is a folder; {fmt} output is a file")]
     if fmt == "tum" and path.exists() and not path.is_dir():
         return [scene.problem(at, f"'{scene.get(at)}' is a file; tum output is a folder")]
+    problem = tum_folder_problem(path, None, scene.file) if fmt == "tum" else \
+        file_target_problem(path) if fmt is not None else None
+    if problem is not None:
+        return [scene.problem(at, about(scene.get(at), problem))]
     return []
 
 
-def _existing_file(scene: Scene, path: tuple, problems: list[Problem]) -> str | None:
-    resolved = scene.resolve_path(path, problems)
-    if resolved is not None and not resolved.is_file():
-        problems.append(scene.problem(path, f"file '{scene.get(path)}' not found",
-                                      f"paths are relative to {scene.base_dir}"))
+def _tum_entity_problems(scene: Scene, output: OutputSpec, override, entities) -> list:
+    """A TUM run writes one file per entity: at most MAX_TUM_ENTITIES, and no `.tum` files
+    of other entities may stay beside them (a mix of two runs)."""
+    where = (lambda message: Problem("command line (-o)", 0, 0, (), message)) \
+        if override is not None else (lambda message: scene.problem(("output", "file"),
+                                                                     message))
+    if len(entities) > MAX_TUM_ENTITIES:
+        return [where(f"tum output writes one file per entity, at most {MAX_TUM_ENTITIES}; "
+                      f"this scene has {len(entities)} entities (use csv or mcap)")]
+    problem = tum_folder_problem(output.path, set(entities), scene.file)
+    if problem is not None:
+        shown = str(output.path) if override is not None else scene.get(("output", "file"))
+        return [where(about(shown, problem))]
+    return []
+
+
+def _overwritten_inputs(scene: Scene, output: OutputSpec, shapes) -> list[Problem]:
+    """The output must not replace a file the scene reads (a mesh, a sensor file): the
+    run would destroy its own input (as it may not the scene file itself)."""
+    if output.path is None or str(output.path) == "-":
+        return []
+    try:
+        target = output.path.resolve()
+    except (OSError, RuntimeError):
+        return []
+    inputs = [(("bodies", i, "shape", "file"), shape.get("path"))
+              for i, shape in enumerate(shapes) if shape and shape["type"] == "mesh"]
+    spec = scene.data.get("input") or {}
+    inputs += [(("input", key), scene.base_dir.resolve() / spec[key])
+               for key in ("file", "tracker", "replay") if isinstance(spec.get(key), str)]
+    for key, path in inputs:
+        if path is None:
+            continue
+        try:
+            same = Path(path).resolve() == target or (output.format == "tum" and Path(
+                path).resolve().parent == target)
+        except (OSError, RuntimeError, ValueError):
+            continue
+        if same:
+            where = ("output", "file") if output.path is not None and ("output", "file") \
+                in scene.value_pos else key
+            return [scene.problem(where, f"the output would overwrite {format_key_path(key)} "
+                                  f"('{scene.get(key)}'), which this scene reads")]
+    return []
+
+
+def _start_overlaps(scene: Scene, kinds, pos0, shapes, emit) -> int:
+    """Pairs of colliding bodies that start at one point (budget.coincident_pairs): bodies
+    at the same position, emitted particles released at the same step."""
+    top = scene.data.get("collision")
+    if top is None or not top.get("enabled", True):
+        return 0
+    from vrsim_cli.model.budget import coincident_pairs
+
+    bodies = scene.data.get("bodies") or []
+    keys, movable = [], []
+    for i, (kind, shape) in enumerate(zip(kinds, shapes)):
+        spec = (bodies[i].get("collision") or {}) if i < len(bodies) else {}
+        if shape is None or shape["type"] == "plane" or not spec.get("enabled", True):
+            continue
+        keys.append((tuple(float(x) for x in pos0[i]), int(emit[i])))
+        movable.append(kind != BODY_STATIC)
+    return coincident_pairs(keys, movable)
+
+
+def _memory_problems(scene: Scene, n_body: int, output: OutputSpec, frames, triangles,
+                     pairs: int):
+    """The run's memory estimate (model/budget.py) past its limit, located at what drives
+    it: the emitters or bodies, the frames, the largest mesh, or bodies at one point."""
+    from vrsim_cli.model.budget import budget_problem, estimate_mb
+
+    pixels = frames.width * frames.height if frames is not None else 0
+    terms = estimate_mb(n_body, output.format if output.path is not None else None, pixels,
+                        True, sum(n for _, n in triangles), pairs)
+    found = budget_problem(terms)
+    if found is None:
+        return []
+    message, main = found
+    data = scene.data
+    if main == "frames":
+        where, hint = ("output", "frames"), "render smaller frames (width x height)"
+    elif main == "meshes":
+        where = ("bodies", max(triangles, key=lambda t: t[1])[0], "shape", "file")
+        hint = "use meshes with fewer triangles"
+    elif main == "overlaps":
+        where = ("emitters",) if data.get("emitters") else ("bodies",)
+        hint = (f"{pairs} pairs of colliding bodies start at the same point: give them "
+                f"positions of their own, or let emitters release fewer particles per step")
+    else:
+        where = ("emitters",) if data.get("emitters") else ("bodies",)
+        hint = "use fewer bodies or particles" + (" (CSV output takes less than MCAP)"
+                                                   if output.format == "mcap" else "")
+    return [scene.problem(where, message, hint, at_key=main in ("bodies", "overlaps"))]
+
+
+def _mesh_file(scene: Scene, at: tuple, problems: list[Problem], triangles: list) -> str | None:
+    """The mesh file of the shape at `at`, checked once for every mesh body (also those
+    only drawn or written to MCAP): a regular file that trimesh reads, with at most
+    MAX_MESH_TRIANGLES triangles, finite vertices and a size vrsim simulates."""
+    resolved = scene.input_path(at + ("file",), problems, MAX_MESH_BYTES)
+    if resolved is None:
         return None
-    return str(resolved) if resolved is not None else None
+    from vrsim_cli.maths.meshes import load_mesh  # trimesh: only mesh scenes pay for it
+
+    try:
+        mesh = load_mesh(str(resolved), float(scene.get(at + ("scale",), 1.0)))
+        triangles.append((at[1], len(mesh.faces)))
+    except ValueError as exc:
+        problems.append(scene.problem(at + ("file",), str(exc).replace(
+            f"'{resolved}'", f"'{scene.get(at + ('file',))}'"), "vrsim reads OBJ, STL, PLY, "
+            "GLB and glTF meshes"))
+        return None
+    return str(resolved)
 
 
 def _orientation(body: dict) -> np.ndarray:

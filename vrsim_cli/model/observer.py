@@ -21,6 +21,8 @@ import numpy as np
 
 from vrsim_cli.errors import InputError, Problem
 from vrsim_cli.maths.spatial import quat_normalize, quat_slerp, unit
+from vrsim_cli.scene.files import MAX_SENSOR_BYTES
+from vrsim_cli.scene.limits import RANGES
 from vrsim_cli.scene.spec import Scene
 
 # X3D NavigationInfo defaults: avatarSize [0.25, 1.6, 0.75], speed 1 m/s.
@@ -88,9 +90,12 @@ def compile_observer(scene: Scene, gravity, problems: list[Problem],
     if "look_at" in spec:
         look_at = np.array(spec["look_at"], dtype=float)
         direction = look_at - position
-        if not direction.any():
+        # d = L - V is the view direction whose length the walk keeps (slide 5.1): the
+        # same range as a given direction (a point 1e-300 m away gave NaN orientations)
+        low = RANGES["direction"][0]
+        if not np.abs(direction).max() >= low:
             problems.append(scene.problem(("observer", "look_at"), "look_at must differ from "
-                                          "the observer's position"))
+                                          f"the observer's position by at least {low:g} m"))
             direction = np.array([0.0, 0.0, -1.0])
     else:
         direction = np.array(spec.get("direction", [0.0, 0.0, -1.0]), dtype=float)
@@ -135,7 +140,7 @@ def compile_input(scene: Scene, observer: ObserverModel | None,
         return InputModel("per_frame", np.zeros(0), values)
     for key in ("file", "tracker", "replay"):
         if key in spec:
-            path = scene.resolve_path(("input", key), problems)
+            path = scene.input_path(("input", key), problems, MAX_SENSOR_BYTES)
             if path is None:
                 return NO_INPUT
             if key == "file":

@@ -27,14 +27,16 @@ import yaml
 
 from vrsim_cli.errors import InputError, Problem, did_you_mean
 from vrsim_cli.scene.animation import body_issues
+from vrsim_cli.scene.files import MAX_SCENE_BYTES, input_file_problem, read_input_file
+from vrsim_cli.scene.limits import limit_issues
 from vrsim_cli.scene.rigid import needs_mass_key, rigid_problems
 
 SCHEMA_RESOURCE = "scene.schema.json"
-MAX_FILE_BYTES = 32 * 1024 * 1024  # a scene is text written by people; larger is a mistake
+MAX_FILE_BYTES = MAX_SCENE_BYTES  # a scene is text written by people; larger is a mistake
 MAX_NODES = 200_000  # values after alias expansion; bounds memory and validation time
 MAX_DEPTH = 64
 MAX_PROBLEMS = 100  # reported per file; the rest are counted
-MAX_BODIES = 1_000_000  # bodies plus emitted particles: beyond this a scene is a mistake
+MAX_BODIES = 400_000  # bodies plus emitted particles (model/budget.py: ~360k fit in memory)
 
 _STR_TAG = "tag:yaml.org,2002:str"
 
@@ -73,8 +75,20 @@ def _construct_located(self, node, deep=False):
             node.start_mark) from None
 
 
+def _compose_counted(self, parent, index):
+    """Count the nodes as they are composed and stop at MAX_NODES: a 4 MB flow list of two
+    million zeros took 52 s and 1.4 GB to compose before any budget could look at it."""
+    self.composed = getattr(self, "composed", 0) + 1
+    if self.composed > MAX_NODES:
+        raise yaml.composer.ComposerError(
+            None, None, f"the document holds more than {MAX_NODES} values",
+            self.peek_event().start_mark)
+    return yaml.SafeLoader.compose_node(self, parent, index)
+
+
 _SceneLoader.fetch_flow_collection_start = _fetch_flow_collection_start
 _SceneLoader.construct_object = _construct_located
+_SceneLoader.compose_node = _compose_counted
 
 KeyPath = tuple  # tuple[str | int, ...]
 
@@ -159,8 +173,15 @@ class Scene:
         candidate = Path(os.path.expanduser(raw)) if tuple(path) in self.overrides else Path(raw)
         if tuple(path) in self.overrides:
             return candidate
-        base = (Path.cwd() if output else self.base_dir).resolve()
-        resolved = (base / candidate).resolve()
+        try:
+            base = (Path.cwd() if output else self.base_dir).resolve()
+            resolved = (base / candidate).resolve()
+        except RuntimeError:  # Python 3.11 raises this for a loop of links
+            problems.append(self.problem(path, f"'{raw}' is a loop of symbolic links"))
+            return None
+        except OSError as exc:  # e.g. a name too long for the file system
+            problems.append(self.problem(path, f"cannot use '{raw}': {exc.strerror or exc}"))
+            return None
         if candidate.is_absolute() or not resolved.is_relative_to(base):
             if output:
                 problems.append(self.problem(
@@ -175,26 +196,41 @@ class Scene:
             return None
         return resolved
 
+    def input_path(self, path: Sequence[str | int], problems: list[Problem],
+                   limit_bytes: int) -> Path | None:
+        """`resolve_path` for a file the run reads (a mesh, a sensor CSV, a replay): it
+        must be a regular file of at most `limit_bytes` (not a FIFO, device or folder,
+        which would block or never end)."""
+        resolved = self.resolve_path(path, problems)
+        if resolved is None:
+            return None
+        problem = input_file_problem(resolved, limit_bytes)
+        if problem == "no such file":
+            problems.append(self.problem(path, f"file '{self.get(path)}' not found",
+                                         f"paths are relative to {self.base_dir}"))
+            return None
+        if problem is not None:
+            problems.append(self.problem(path, f"'{self.get(path)}' {problem}"
+                                         if problem.startswith("is ") else problem))
+            return None
+        return resolved
+
 
 # ----------------------------------------------------------------------------- loading
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
-    """Read and validate a scene file. Raises InputError with every problem found."""
+    """Read and validate a scene file. Raises InputError with every problem found. Only a
+    regular file of at most MAX_FILE_BYTES is read: a FIFO, a device (/dev/zero) or a
+    folder is refused before anything blocks or fills memory."""
     path = Path(path)
     name = str(path)
     try:
-        size = path.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise InputError([Problem(name, 0, 0, (), f"file is {size} bytes; scene files are "
-                                      f"limited to {MAX_FILE_BYTES} bytes")])
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError([Problem(name, 0, 0, (), "no such file")]) from None
-    except IsADirectoryError:
-        raise InputError([Problem(name, 0, 0, (), "is a folder, not a scene file")]) from None
-    except OSError as exc:
-        raise InputError([Problem(name, 0, 0, (), f"cannot read: {exc.strerror}")]) from None
+        raw = read_input_file(path, MAX_FILE_BYTES)
+    except ValueError as exc:
+        hint = "scene files are YAML text; see docs/scene-format.md" \
+            if "bytes" in str(exc) else None
+        raise InputError([Problem(name, 0, 0, (), str(exc), hint)]) from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -568,6 +604,8 @@ def _semantic_problems(scene: Scene) -> Iterator[Problem]:
             if "end" in force and force["end"] <= force.get("start", 0.0):
                 yield scene.problem(fat + ("end",), "must be later than start")
     yield from rigid_problems(scene, dim)
+    for path, message, hint in limit_issues(data):
+        yield scene.problem(path, message, hint)
     total = len(data.get("bodies") or []) + sum(e["count"] for e in data.get("emitters") or [])
     if total > MAX_BODIES:
         yield scene.problem(("emitters",) if data.get("emitters") else ("bodies",),

@@ -5,6 +5,7 @@ Layer 7: reads the model and the loop's RunResult; the CLI only prints.
 
 from __future__ import annotations
 
+from vrsim_cli.errors import printable
 from vrsim_cli.model.state import state_hash
 from vrsim_cli.text import plural, table
 
@@ -51,10 +52,11 @@ def failure_summary(model, error) -> dict:
 
 
 def format_run(summary: dict, profile: bool, realtime: bool) -> list[str]:
-    """The human lines of a finished run."""
+    """The human lines of a finished run, escaped: the scene's name may hold terminal
+    control sequences (errors.printable)."""
     factor = summary["realtime_factor"]
-    where = f" -> {summary['output']}" if summary["output"] is not None else \
-        " (no output: use -o FILE)"
+    output = "standard output" if summary["output"] == "-" else summary["output"]
+    where = f" -> {output}" if output is not None else " (no output: use -o FILE)"
     lines = [f"{summary['scene']}: simulated {summary['simulated_s']:.6g} s in "
              f"{plural(summary['steps'], 'step')} of {summary['dt_s']:.6g} s, wall "
              f"{summary['wall_s']:.3f} s, "
@@ -71,4 +73,4 @@ def format_run(summary: dict, profile: bool, realtime: bool) -> list[str]:
         lines += table(["stage", "total s", "us/step", "share"],
                        [[stage, f"{s:.4f}", f"{1e6 * s / steps:.2f}", f"{100 * s / total:.1f}%"]
                         for stage, s in stages.items()], right={1, 2, 3})
-    return lines
+    return [printable(line) for line in lines]

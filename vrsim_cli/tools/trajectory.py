@@ -10,12 +10,14 @@ import csv
 import gzip
 import json
 import zlib
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from vrsim_cli.errors import InputError, Problem
+from vrsim_cli.errors import InputError, Problem, printable
+from vrsim_cli.scene.files import input_file_problem
 from vrsim_cli.text import plural, table
 from vrsim_cli.writers.entities import CSV_COLUMNS
 
@@ -34,10 +36,14 @@ class Track:
     angvel: np.ndarray
 
     @classmethod
-    def from_rows(cls, t: list, rows: list) -> "Track":
-        data = np.asarray(rows, dtype=float).reshape(len(rows), 13)
-        return cls(np.asarray(t, dtype=float), data[:, 0:3], data[:, 3:7], data[:, 7:10],
-                   data[:, 10:13])
+    def from_rows(cls, t, rows) -> "Track":
+        """t: n times; rows: n rows of 13 numbers, or a flat array('d') of 13 n."""
+        # an array('d') is wrapped, not copied
+        data = (np.frombuffer(rows, dtype=float) if isinstance(rows, array) else
+                np.asarray(rows, dtype=float)).reshape(len(t), 13)
+        times = np.frombuffer(t, dtype=float) if isinstance(t, array) else \
+            np.asarray(t, dtype=float)
+        return cls(times, data[:, 0:3], data[:, 3:7], data[:, 7:10], data[:, 10:13])
 
 
 @dataclass
@@ -55,6 +61,12 @@ class Trajectory:
         if not self.tracks:
             return np.zeros(0)
         return np.unique(np.concatenate([tr.t for tr in self.tracks.values()]))
+
+
+# Reading is bounded: text (a gzip file may expand a thousandfold) and numbers, kept as
+# packed float64 (a short number such as "0," is 2 bytes of text but 8 in memory).
+MAX_TRAJECTORY_BYTES = 128 * 1024 * 1024
+MAX_TRAJECTORY_ROWS = 2_500_000  # entity samples: 14 float64 each, ~280 MB (compare reads 2)
 
 
 def summary(traj: Trajectory, file: str) -> dict:
@@ -76,7 +88,8 @@ def summary(traj: Trajectory, file: str) -> dict:
 
 
 def format_summary(info: dict) -> list[str]:
-    """The lines of `vrsim info`."""
+    """The lines of `vrsim info`, escaped: names, topics and metadata come from the file
+    and may hold terminal control sequences (errors.printable)."""
     names = info["entities"]
     lines = [f"{info['file']}: {info['format']}, {plural(len(names), 'entity')}, "
              f"{plural(info['samples'], 'sample')}"]
@@ -98,22 +111,25 @@ def format_summary(info: dict) -> list[str]:
     if info["channels"]:
         lines.append("channels:")
         lines += table(["topic", "schema", "messages"],
-                       [[c["topic"], c["schema"], c["messages"]] for c in info["channels"]],
+                       [[printable(c["topic"]), printable(c["schema"]), c["messages"]]
+                        for c in info["channels"]],
                        right={2}, indent="  ")
     made = info["vrsim"]
     if made:
         lines.append(f"made by vrsim {made.get('version', '?')} from "
                      f"{made.get('scene_file', '?')} (dt {made.get('dt', '?')} s, "
                      f"{made.get('integrator', '?')})")
-    return lines
+    return [printable(line) for line in lines]
 
 
 def read_trajectory(path: str | Path) -> Trajectory:
     path = Path(path)
     if path.is_dir():
         return _read_tum_folder(path)
-    if not path.exists():
-        raise InputError([Problem(str(path), 0, 0, (), "no such file")])
+    # a FIFO or device would block or never end; numbers are kept as packed float64
+    problem = input_file_problem(path, MAX_TRAJECTORY_BYTES)
+    if problem is not None:
+        raise InputError([Problem(str(path), 0, 0, (), problem)])
     suffix = path.suffix.lower()
     if "".join(path.suffixes[-2:]).lower() == ".csv.gz":
         return _read_csv(path, compressed=True)
@@ -137,12 +153,12 @@ def _fail(path: Path, line: int, message: str, hint: str | None = None) -> Input
 def _read_csv(path: Path, compressed: bool = False) -> Trajectory:
     """A vrsim CSV; `compressed`: gzip-compressed (.csv.gz, as the golden files are)."""
     traj = Trajectory(str(path), "csv.gz" if compressed else "csv")
-    times: dict[str, list] = {}
-    rows: dict[str, list] = {}
+    times: dict[str, array] = {}
+    rows: dict[str, array] = {}
     try:
         opener = gzip.open if compressed else open
         with opener(path, "rt", newline="", encoding="utf-8") as f:
-            reader = csv.reader(f)
+            reader = csv.reader(_limited(f, path))
             header = next(reader, None)
             if header is None or tuple(header) != CSV_COLUMNS:
                 raise _fail(path, 1, "not a vrsim trajectory CSV",
@@ -157,8 +173,12 @@ def _read_csv(path: Path, compressed: bool = False) -> Trajectory:
                 except ValueError:
                     raise _fail(path, line_no, "a number column holds something else") from None
                 name = row[1]
-                times.setdefault(name, []).append(t)
-                rows.setdefault(name, []).append(values)
+                if name not in times:
+                    times[name], rows[name] = array("d"), array("d")
+                if line_no > MAX_TRAJECTORY_ROWS + 1:
+                    raise _too_many(path)
+                times[name].append(t)
+                rows[name].extend(values)
     except UnicodeDecodeError:
         raise _fail(path, 0, "not UTF-8 text") from None
     except csv.Error as exc:  # e.g. a field longer than the csv module's limit
@@ -172,11 +192,31 @@ def _read_csv(path: Path, compressed: bool = False) -> Trajectory:
     return traj
 
 
+def _too_many(path: Path) -> InputError:
+    return _fail(path, 0, f"holds more than {MAX_TRAJECTORY_ROWS} entity samples; at most "
+                          f"that many are read")
+
+
+def _limited(lines, path: Path):
+    """The lines of a text file, refused beyond MAX_TRAJECTORY_BYTES characters (a gzip
+    file may expand a thousandfold)."""
+    total = 0
+    for line in lines:
+        total += len(line)
+        if total > MAX_TRAJECTORY_BYTES:
+            raise _fail(path, 0, f"holds more than {MAX_TRAJECTORY_BYTES} bytes of text; at "
+                                 f"most that much is read")
+        yield line
+
+
 def _read_tum_file(path: Path) -> Track:
-    t, rows = [], []
+    problem = input_file_problem(path, MAX_TRAJECTORY_BYTES)  # in a folder: any kind
+    if problem is not None:
+        raise _fail(path, 0, problem)
+    t, rows = array("d"), array("d")
     try:
         with open(path, encoding="utf-8") as f:
-            for line_no, line in enumerate(f, start=1):
+            for line_no, line in enumerate(_limited(f, path), start=1):
                 line = line.strip()
                 if not line or line.startswith("#"):
                     continue
@@ -189,7 +229,9 @@ def _read_tum_file(path: Path) -> Track:
                 except ValueError:
                     raise _fail(path, line_no, "not a number") from None
                 t.append(tt)
-                rows.append([tx, ty, tz, qw, qx, qy, qz] + [np.nan] * 6)
+                rows.extend([tx, ty, tz, qw, qx, qy, qz] + [np.nan] * 6)
+                if len(t) > MAX_TRAJECTORY_ROWS:
+                    raise _too_many(path)
     except UnicodeDecodeError:
         raise _fail(path, 0, "not UTF-8 text") from None
     except OSError as exc:
@@ -218,8 +260,7 @@ def _read_mcap(path: Path) -> Trajectory:
     from mcap.reader import make_reader
 
     traj = Trajectory(str(path), "mcap")
-    times: dict[str, list] = {}
-    rows: dict[str, list] = {}
+    samples = _Samples(path)
     try:
         with open(path, "rb") as f:
             reader = make_reader(f)
@@ -239,23 +280,43 @@ def _read_mcap(path: Path) -> Trajectory:
             decode = _Decoders()
             if "/vrsim/state" in schema_of:
                 for schema, channel, message in reader.iter_messages(topics=["/vrsim/state"]):
-                    _state_rows(decode(schema, channel, message), times, rows)
+                    _state_rows(decode(schema, channel, message), samples)
             else:
                 topics = [t for t, s in schema_of.items() if s in TRANSFORM_SCHEMAS]
                 if topics:
                     traj.source_channels = topics
                 for schema, channel, message in reader.iter_messages(topics=topics):
                     _transform_rows(decode(schema, channel, message), message.log_time,
-                                    times, rows, traj.frames)
+                                    samples, traj.frames)
     except InputError:
         raise
     except OSError as exc:
         raise _fail(path, 0, f"cannot read: {exc.strerror}") from None
     except Exception as exc:  # the mcap library raises many types for corrupt files
         raise _fail(path, 0, f"not a readable MCAP file ({type(exc).__name__}: {exc})") from None
-    for name in times:
-        traj.tracks[name] = Track.from_rows(times[name], rows[name])
+    for name in samples.times:
+        traj.tracks[name] = Track.from_rows(samples.times[name], samples.rows[name])
     return traj
+
+
+class _Samples:
+    """Entity samples as they are read, packed float64 per entity (times[name]: n,
+    rows[name]: 13 n), refused beyond MAX_TRAJECTORY_ROWS."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.times: dict[str, array] = {}
+        self.rows: dict[str, array] = {}
+        self.count = 0
+
+    def add(self, name: str, t: float, row) -> None:
+        if name not in self.times:
+            self.times[name], self.rows[name] = array("d"), array("d")
+        self.count += 1
+        if self.count > MAX_TRAJECTORY_ROWS:
+            raise _too_many(self.path)
+        self.times[name].append(t)
+        self.rows[name].extend(row)
 
 
 class _Decoders:
@@ -286,14 +347,13 @@ class _Decoders:
                          f"json)")
 
 
-def _state_rows(sample, times: dict, rows: dict) -> None:
+def _state_rows(sample, samples: _Samples) -> None:
     """Rows of one vrsim.State: the packed arrays of the protobuf message, or the
     per-entity objects of the JSON one (vrsim before 0.2)."""
     if isinstance(sample, dict):  # JSON
         t = float(sample["t"])
         for entity in sample["entities"]:
-            times.setdefault(entity["name"], []).append(t)
-            rows.setdefault(entity["name"], []).append([entity[c] for c in STATE_COLUMNS])
+            samples.add(entity["name"], t, [float(entity[c]) for c in STATE_COLUMNS])
         return
     t = float(sample.t)
     names = list(sample.entity)
@@ -302,11 +362,10 @@ def _state_rows(sample, times: dict, rows: dict) -> None:
                          for field, width in (("position", 3), ("orientation", 4),
                                               ("velocity", 3), ("angular_velocity", 3))])
     for name, row in zip(names, columns.tolist()):
-        times.setdefault(name, []).append(t)
-        rows.setdefault(name, []).append(row)
+        samples.add(name, t, row)
 
 
-def _transform_rows(message, log_time: int, times: dict, rows: dict, frames: dict) -> None:
+def _transform_rows(message, log_time: int, samples: _Samples, frames: dict) -> None:
     """Rows of a FrameTransforms (or one FrameTransform) message, protobuf or in
     Foxglove's JSON field names; a transform without a timestamp takes the log time."""
     if not isinstance(message, dict):
@@ -325,10 +384,8 @@ def _transform_rows(message, log_time: int, times: dict, rows: dict, frames: dic
             t = int(seconds) + int(nanos) * 1e-9 if (seconds or nanos) else log_time * 1e-9
         p, q = tf.get("translation") or {}, tf.get("rotation") or {}
         frames[name] = tf.get("parent_frame_id", "")
-        times.setdefault(name, []).append(t)
-        rows.setdefault(name, []).append(
-            [float(p.get(c, 0.0)) for c in "xyz"] + [float(q.get(c, 0.0)) for c in "wxyz"]
-            + [np.nan] * 6)
+        samples.add(name, t, [float(p.get(c, 0.0)) for c in "xyz"]
+                    + [float(q.get(c, 0.0)) for c in "wxyz"] + [np.nan] * 6)
 
 
 def _rfc3339_seconds(text: str) -> float:

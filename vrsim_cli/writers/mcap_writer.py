@@ -100,7 +100,7 @@ class McapWriter:
         self.model = model
         self.names = entity_names(model)
         self.samples = 0
-        self.out = AtomicFile(path) if path is not None else None
+        self.out = AtomicFile(path).seekable() if path is not None else None
         self.path = path
         self.live = live
         self.outlets: list[Outlet] = []

@@ -1,76 +1,97 @@
 """TUM trajectories: a folder with one `ENTITY.tum` per entity, lines `t tx ty tz qx qy qz qw`.
 
 The format of the TUM RGB-D benchmark, read by the `evo` trajectory tools. Note the
-quaternion order: TUM puts w last. The files are written into a temporary folder beside
-the target and the folder is swapped in when the run ends, so the target holds either the
-previous run's complete set of files or the new one's, never a mix (and no stale files of
-entities the new run does not have). Lines are kept in memory until then: TUM is meant for
-a handful of entities.
+quaternion order: TUM puts w last.
+
+The folder is the user's: vrsim creates it when it is missing, and otherwise only replaces
+its own `ENTITY.tum` files in it, never anything else (a folder holding other files, or
+`.tum` files of entities this run does not have, is refused before the run: see
+`scene.files.tum_folder_problem`). Each file is streamed into a locked temporary file in
+the folder as the run goes (memory does not grow with the run) and renamed over its
+target when the run ends, after every file has been flushed to disk (one fsync per file
+and one for the folder). Until then the folder holds the previous run's files, untouched;
+a run that fails removes its temporary files (and the folder, if it made it and it is
+empty). TUM is meant for a handful of entities: one open file each, at most MAX_ENTITIES.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 from vrsim_cli.errors import OutputError
-from vrsim_cli.model.model import Model
+from vrsim_cli.model.model import MAX_TUM_ENTITIES, Model
 from vrsim_cli.model.state import State
+from vrsim_cli.scene.files import fsync_dir, remove_stale_partials, tum_folder_problem
+from vrsim_cli.writers.atomic import AtomicFile
 from vrsim_cli.writers.entities import entity_arrays, entity_names
 
 # Columns of entity_arrays: px py pz qw qx qy qz ...; TUM wants tx ty tz qx qy qz qw.
 TUM_ORDER = [0, 1, 2, 4, 5, 6, 3]
+MAX_ENTITIES = MAX_TUM_ENTITIES  # one open file each (the usual limit is 1024 descriptors)
 
 
 class TumWriter:
     def __init__(self, model: Model, folder: Path):
         self.model = model
         self.folder = Path(folder)
-        if not self.folder.parent.is_dir():
-            raise OutputError(f"cannot write {self.folder}: folder '{self.folder.parent}' "
-                              f"does not exist")
-        if self.folder.exists() and not self.folder.is_dir():
-            raise OutputError(f"cannot write {self.folder}: it is a file, not a folder")
         self.names = entity_names(model)
-        self.lines: list[list[str]] = [[] for _ in self.names]
+        if len(self.names) > MAX_ENTITIES:
+            raise OutputError(f"cannot write {self.folder}: tum output writes one file per "
+                              f"entity, at most {MAX_ENTITIES}; this run has "
+                              f"{len(self.names)} (use csv or mcap)")
+        problem = tum_folder_problem(self.folder, set(self.names), model.scene_file or None)
+        if problem is not None:
+            raise OutputError(f"cannot write {self.folder}: {problem}")
+        self.created = False
+        if not self.folder.exists():
+            try:
+                self.folder.mkdir()  # mode 0777 less the umask, like mkdir(1)
+            except OSError as exc:
+                raise OutputError(f"cannot write {self.folder}: {exc.strerror}") from None
+            self.created = True
+        remove_stale_partials(self.folder)  # of any entity: earlier killed TUM runs
+        self.files: list[AtomicFile] = []
+        try:
+            for name in self.names:
+                self.files.append(AtomicFile(self.folder / f"{name}.tum"))
+        except OutputError:
+            self.abort()
+            raise
         self.samples = 0
 
     def write(self, state: State) -> None:
         t = repr(float(state.t))
         rows = entity_arrays(self.model, state)[:, TUM_ORDER].tolist()
-        for lines, row in zip(self.lines, rows):
-            lines.append(f"{t} {' '.join(map(repr, row))}\n")
+        for out, row in zip(self.files, rows):
+            out.write(f"{t} {' '.join(map(repr, row))}\n".encode())
         self.samples += 1
 
     def close(self) -> None:
-        parent, name = self.folder.parent, self.folder.name
+        """Flush every file to disk, then rename each over its target."""
+        problem = tum_folder_problem(self.folder, set(self.names), self.model.scene_file
+                                     or None)
+        if problem is not None:  # the folder changed during the run
+            self.abort()
+            raise OutputError(f"cannot write {self.folder}: {problem}; any previous output "
+                              f"there is untouched")
         try:
-            tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".partial", dir=parent))
-        except OSError as exc:
-            raise OutputError(f"cannot write {self.folder}: {exc.strerror}") from None
-        old = None
-        moved_aside = False
-        try:
-            for entity, lines in zip(self.names, self.lines):
-                with open(tmp / f"{entity}.tum", "w", encoding="utf-8") as f:
-                    f.write("".join(lines))
-            os.sync()  # one flush for all files (an fsync per file costs ~1 ms each)
-            if self.folder.exists():
-                old = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".old", dir=parent))
-                os.replace(self.folder, old / name)
-                moved_aside = True
-            os.replace(tmp, self.folder)
-        except OSError as exc:
-            if moved_aside:  # put the previous output back where it was
-                os.replace(old / name, self.folder)
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise OutputError(f"cannot write {self.folder}: {exc.strerror}; any previous "
-                              f"output there is untouched") from None
-        finally:
-            if old is not None:
-                shutil.rmtree(old, ignore_errors=True)
+            for out in self.files:
+                out.sync()
+            for out in self.files:
+                out.commit(sync_folder=False)
+        except OutputError:
+            self.abort()
+            raise
+        fsync_dir(self.folder)
+        if self.created:
+            fsync_dir(self.folder.parent)
 
     def abort(self) -> None:
-        self.lines = []
+        for out in self.files:
+            out.discard()
+        if self.created:
+            try:
+                os.rmdir(self.folder)  # only when empty: never anything but what we made
+            except OSError:
+                pass
