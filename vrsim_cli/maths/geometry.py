@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from vrsim_cli.maths.products import dot, norm
+
 from vrsim_cli.maths.spatial import quat_conjugate, quat_rotate
 
 ANALYTIC = ("sphere", "box", "plane", "capsule", "cylinder")
@@ -28,7 +30,7 @@ def _box_sdf(half, p):
     """Signed distance and outward normal of an axis-aligned box of half extents `half`."""
     q = np.abs(p) - half
     outside = np.maximum(q, 0.0)
-    out_len = float(np.linalg.norm(outside))
+    out_len = float(norm(outside))
     if out_len > 0.0:
         return out_len, np.sign(p) * outside / out_len
     axis = int(np.argmax(q))
@@ -41,7 +43,7 @@ def _local_sdf(shape: dict, p) -> tuple[float, np.ndarray]:
     """Signed distance and outward normal in the shape's own frame (not for planes)."""
     kind = shape["type"]
     if kind == "sphere":
-        r = float(np.linalg.norm(p))
+        r = float(norm(p))
         normal = p / r if r > 0.0 else np.array([0.0, 1.0, 0.0])
         return r - shape["radius"], normal
     if kind == "box":
@@ -49,7 +51,7 @@ def _local_sdf(shape: dict, p) -> tuple[float, np.ndarray]:
     if kind == "capsule":
         half = 0.5 * shape["length"]
         offset = p - np.array([0.0, min(max(p[1], -half), half), 0.0])
-        r = float(np.linalg.norm(offset))
+        r = float(norm(offset))
         return r - shape["radius"], (offset / r if r > 0.0 else np.array([1.0, 0.0, 0.0]))
     if kind == "cylinder":
         radial = float(math.hypot(p[0], p[2]))
@@ -76,15 +78,15 @@ def signed_distance(shape: dict, pos, quat, point) -> tuple[float, np.ndarray]:
     """(distance m, outward unit normal (3,)) from `point` to the solid; negative inside."""
     if shape["type"] == "plane":
         n = np.asarray(shape["normal"], dtype=float)
-        return float(np.dot(n, point) - shape["offset"]), n
+        return float(dot(n, point) - shape["offset"]), n
     d, n_local = _local_sdf(shape, _to_local(pos, quat, point))
     return float(d), quat_rotate(quat, n_local)
 
 
 def _ray_sphere(o, d, centre, r):
     oc = o - centre
-    b = float(np.dot(oc, d))
-    c = float(np.dot(oc, oc)) - r * r
+    b = float(dot(oc, d))
+    c = float(dot(oc, oc)) - r * r
     disc = b * b - c
     if disc < 0.0:
         return None
@@ -132,10 +134,10 @@ def ray_cast(shape: dict, pos, quat, origin, direction) -> float | None:
     direction = np.asarray(direction, dtype=float)
     if kind == "plane":
         n = np.asarray(shape["normal"], dtype=float)
-        denom = float(np.dot(n, direction))
+        denom = float(dot(n, direction))
         if denom >= 0.0:
             return None
-        return (shape["offset"] - float(np.dot(n, origin))) / denom
+        return (shape["offset"] - float(dot(n, origin))) / denom
     o = _to_local(pos, quat, origin)
     d = quat_rotate(quat_conjugate(quat), direction)
     if kind == "sphere":
@@ -176,7 +178,7 @@ def capsule_distance(shape: dict, pos, quat, a, b, radius: float):
         return min(da, db) - radius, np.asarray(shape["normal"], dtype=float), point
     la, lb = _to_local(pos, quat, a), _to_local(pos, quat, b)
     axis = lb - la
-    length2 = float(np.dot(axis, axis))
+    length2 = float(dot(axis, axis))
 
     def f(s):
         return _local_sdf(shape, la + s * axis)[0]

@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 
+from vrsim_cli.maths.products import matmul
+
 from vrsim_cli.maths.spatial import quat_from_matrix
 
 PROXY_SAMPLES = 2000  # points sampled on each surface for the proxy error (plus vertices)
@@ -148,7 +150,7 @@ def proxy_surface(mesh, name: str, p: dict):
 
 
 def _box_surface_distance(points, centre, rot, half):
-    local = (points - centre) @ rot
+    local = matmul(points - centre, rot)
     q = np.abs(local) - half
     return np.abs(np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0))
 
@@ -235,7 +237,7 @@ def ray_mesh(origin, direction, vertices, faces) -> float | None:
     s = o - tri[:, 0]
     u = inv * _dot(s, h)
     q = np.cross(s, e1)
-    v = inv * (q @ d)
+    v = inv * matmul(q, d)
     t = inv * _dot(e2, q)
     hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0)
     return float(t[hit].min()) if hit.any() else None

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.maths.products import matmul
+
 
 def skew(w: np.ndarray) -> np.ndarray:
     """(k, 3) -> (k, 3, 3) cross-product matrices `w*` with `w* b = w x b` (slide 5.3.2):
@@ -43,11 +45,11 @@ def orthonormalize(R: np.ndarray) -> np.ndarray:
     # Near a rotation (drift d = max|R^T R - E| < 1e-8, as after every step of the
     # splitting methods) one Newton-Schulz step R (3E - R^T R) / 2 gives the same polar
     # factor to O(d^2) < 1e-16 at a fraction of the cost of an SVD.
-    gram = np.swapaxes(R, -1, -2) @ R - _EYE
+    gram = matmul(np.swapaxes(R, -1, -2), R) - _EYE
     if R.size and np.abs(gram).max() < 1e-8:
-        return R - 0.5 * (R @ gram)
+        return R - 0.5 * matmul(R, gram)
     u, _, vt = np.linalg.svd(R)
-    return u @ vt
+    return matmul(u, vt)
 
 
 _EYE = np.eye(3)
@@ -56,7 +58,7 @@ _EYE = np.eye(3)
 def orthonormality_error(R: np.ndarray) -> np.ndarray:
     """(k, 3, 3) -> (k,) max |R^T R - E| over the entries."""
     eye = np.eye(3)
-    return np.abs(np.swapaxes(R, -1, -2) @ R - eye).max(axis=(-2, -1))
+    return np.abs(matmul(np.swapaxes(R, -1, -2), R) - eye).max(axis=(-2, -1))
 
 
 def axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
@@ -64,7 +66,7 @@ def axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
     # Few numpy calls (this runs 5 times per body batch per step): [cos, sin] times a
     # (2, 9) table of where they go, plus the fixed 1 on the axis.
     cos_sin = np.cos(angle[..., None] - _PHASE)
-    return (_FIXED[axis] + cos_sin @ _COS_SIN[axis]).reshape(angle.shape + (3, 3))
+    return (_FIXED[axis] + matmul(cos_sin, _COS_SIN[axis])).reshape(angle.shape + (3, 3))
 
 
 def _axis_tables():
@@ -90,7 +92,7 @@ def exp_so3(w: np.ndarray) -> np.ndarray:
     a = np.where(small, 1.0 - theta ** 2 / 6.0, np.sin(safe) / safe)
     b = np.where(small, 0.5 - theta ** 2 / 24.0, (1.0 - np.cos(safe)) / safe ** 2)
     K = skew(w)
-    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * matmul(K, K)
 
 
 def quat_from_matrix(R: np.ndarray) -> np.ndarray:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.maths.products import dot, matmul, norm
+
 IDENTITY_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
 
 
@@ -68,10 +70,10 @@ def quat_rotating(from_vec, to_vec) -> np.ndarray:
     """The shortest-arc rotation taking direction `from_vec` (3,) to direction `to_vec` (3,)."""
     a = unit(from_vec)
     b = unit(to_vec)
-    cos = float(np.dot(a, b))
+    cos = dot(a, b)
     if cos < -1.0 + 1e-12:  # opposite: any axis perpendicular to a will do
         perp = np.cross(a, [1.0, 0.0, 0.0])
-        if np.linalg.norm(perp) < 1e-6:
+        if norm(perp) < 1e-6:
             perp = np.cross(a, [0.0, 0.0, 1.0])
         return quat_from_axis_angle(perp, np.pi)
     q = np.concatenate([[1.0 + cos], np.cross(a, b)])
@@ -129,13 +131,13 @@ def look_rotation(forward, up, fallback_quat=None) -> np.ndarray:
     right axis is kept (or world x if there is none).
     """
     f = np.asarray(forward, dtype=float)
-    f = f / np.linalg.norm(f)
+    f = f / norm(f)
     right = np.cross(f, np.asarray(up, dtype=float))
-    if np.linalg.norm(right) < 1e-9:
+    if norm(right) < 1e-9:
         right = quat_rotate(fallback_quat, [1.0, 0.0, 0.0]) if fallback_quat is not None \
             else np.array([1.0, 0.0, 0.0])
-        right = right - np.dot(right, f) * f
-    right = right / np.linalg.norm(right)
+        right = right - dot(right, f) * f
+    right = right / norm(right)
     true_up = np.cross(right, f)
     return quat_from_matrix(np.column_stack([right, true_up, -f]))
 
@@ -152,12 +154,12 @@ def quat_slerp(a, b, s: float) -> np.ndarray:
     """Shortest-arc spherical interpolation between unit quaternions a (s=0) and b (s=1)."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
-    dot = float(np.dot(a, b))
-    if dot < 0.0:
-        b, dot = -b, -dot
-    if dot > 1.0 - 1e-12:
+    cos = dot(a, b)
+    if cos < 0.0:
+        b, cos = -b, -cos
+    if cos > 1.0 - 1e-12:
         return quat_normalize(a + s * (b - a))
-    theta = np.arccos(min(dot, 1.0))
+    theta = np.arccos(min(cos, 1.0))
     return (np.sin((1.0 - s) * theta) * a + np.sin(s * theta) * b) / np.sin(theta)
 
 
@@ -184,4 +186,4 @@ def quat_rotation_matrices(q) -> tuple:
     q = np.asarray(q, dtype=float)
     left = quat_left_matrix(q)
     conj = q * np.array([1.0, -1.0, -1.0, -1.0])
-    return left, (left @ quat_right_matrix(conj))[..., 1:, 1:]
+    return left, matmul(left, quat_right_matrix(conj))[..., 1:, 1:]

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vrsim_cli.maths.products import norm
+
 from vrsim_cli.maths.meshes import PROXY_SAMPLES, load_mesh, proxy, proxy_errors
 
 SPHERE, PLANE, BOX, CAPSULE, CYLINDER, CONVEX, MESH = range(7)
@@ -123,7 +125,7 @@ def analytic_geom(body: int, shape: dict, dim: int = 3) -> dict:
         if dim == 2:  # planar boxes get a z depth that never decides a contact
             half[2] = max(half[0], half[1], 0.5)
         row["half"] = half
-        row["rbound"] = float(np.linalg.norm(half))
+        row["rbound"] = float(norm(half))
     elif kind == PLANE:
         row["plane_normal"] = np.asarray(shape["normal"], dtype=float)
         row["plane_offset"] = float(shape["offset"])
@@ -187,12 +189,12 @@ def mesh_geom(body: int, shape: dict, geometry: str) -> dict:
         row = _row(body, SPHERE, geometry)
         row["local_pos"], row["radius"] = p["centre"], p["radius"]
         row["half"] = np.full(3, p["radius"])
-        row["rbound"] = float(np.linalg.norm(p["centre"])) + p["radius"]
+        row["rbound"] = float(norm(p["centre"])) + p["radius"]
         return row
     if geometry == "obb":
         row = _row(body, BOX, geometry)
         row["local_pos"], row["local_quat"], row["half"] = p["centre"], p["quat"], p["half"]
-        row["rbound"] = float(np.linalg.norm(p["centre"]) + np.linalg.norm(p["half"]))
+        row["rbound"] = float(norm(p["centre"]) + norm(p["half"]))
         return row
     row = _row(body, {"aabb": BOX, "hull": CONVEX, "mesh": MESH}[geometry], geometry)
     row["vertices"] = p["vertices"]

@@ -66,6 +66,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.products import matmul, dot
+
 from vrsim_cli.maths.spatial import (quat_from_euler_deg, quat_left_matrix, quat_multiply,
                                quat_to_matrix, unit)
 from vrsim_cli.scene.animation import COLOR, DEFAULT_MODE, KB_KEYS, ROTATION, VECTOR, track_issues
@@ -218,7 +220,7 @@ def _hermite_coeffs(times, values, v_in, v_out) -> np.ndarray:
 def _compile_rotation(quats, mode, common) -> Track:
     quats = quats.copy()
     for i in range(1, len(quats)):  # shortest arc: each key in the previous key's hemisphere
-        if np.dot(quats[i], quats[i - 1]) < 0:
+        if dot(quats[i], quats[i - 1]) < 0:
             quats[i] = -quats[i]
     omega = ctrl = None
     half = left = None
@@ -229,7 +231,7 @@ def _compile_rotation(quats, mode, common) -> Track:
         omega = np.einsum("nij,nj->ni", quat_to_matrix(quats[:-1]), 2 * half)
         if mode == "squad":
             closed = "loop" in (common["before"], common["after"]) and len(quats) > 2 and \
-                abs(abs(np.dot(quats[0], quats[-1])) - 1) < 1e-15
+                abs(abs(dot(quats[0], quats[-1])) - 1) < 1e-15
             ctrl = _squad_controls(quats, closed)
     return Track(mode=mode, values=quats, omega=omega, ctrl=ctrl, half=half, left=left,
                  **common)
@@ -239,8 +241,8 @@ def _squad_controls(q, closed) -> np.ndarray:
     nxt = np.vstack([q[1:], q[1:2] if closed else q[-1:]])
     prv = np.vstack([q[-2:-1] if closed else q[:1], q[:-1]])
     if closed:  # the seam keys may differ in sign; put the wrapped neighbours alongside
-        nxt[-1] *= -1.0 if np.dot(nxt[-1], q[-1]) < 0 else 1.0
-        prv[0] *= -1.0 if np.dot(prv[0], q[0]) < 0 else 1.0
+        nxt[-1] *= -1.0 if dot(nxt[-1], q[-1]) < 0 else 1.0
+        prv[0] *= -1.0 if dot(prv[0], q[0]) < 0 else 1.0
     inv = _conj(q)
     log_sum = _quat_log(quat_multiply(inv, nxt)) + _quat_log(quat_multiply(inv, prv))
     ctrl = quat_multiply(q, _quat_exp(-0.25 * log_sum))
@@ -464,7 +466,7 @@ def _eval_rotation(track: Track, u, dudt):
         half = track.half[i] * s[:, None]
         angle = np.linalg.norm(half, axis=1, keepdims=True)
         turn = np.concatenate([np.cos(angle), half * np.sinc(angle / np.pi)], axis=1)
-        value = (track.left[i] @ turn[:, :, None])[:, :, 0]
+        value = matmul(track.left[i], turn[:, :, None])[:, :, 0]
         # d/dt [q_i exp(s log r)] q^-1 = q_i (log r) q_i^-1 ds/dt: constant per segment
         rate = track.omega[i] * sdot[:, None]
     else:

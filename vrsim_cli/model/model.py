@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vrsim_cli.maths.products import dot
+
 from vrsim_cli.errors import InputError, Problem, format_key_path
 from vrsim_cli.maths.geometry import ANALYTIC
 from vrsim_cli.maths.spatial import (IDENTITY_QUAT, quat_from_axis_angle, quat_from_euler_deg,
@@ -522,7 +524,7 @@ def _shape(shape: dict | None, dim: int, position=(0.0, 0.0, 0.0)) -> dict | Non
     if shape["type"] == "plane":
         shape["normal"] = unit(_vec3(shape["normal"], dim)).tolist()
         shape["offset"] = float(shape.get("offset", 0.0)) + \
-            float(np.dot(shape["normal"], position))
+            float(dot(shape["normal"], position))
         shape["orientation"] = list(quat_rotating([0, 1, 0], shape["normal"]))
     return shape
 

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.products import norm
+
 NONE, STOP, SLIDE, IMPULSE = range(4)
 MODES = ("none", "stop", "slide", "impulse")
 # When bodies disagree the more restrictive mode wins: none (a ghost), stop, slide, impulse.
@@ -122,7 +124,7 @@ def compile_response(scene, n_body: int, gravity, tolerance: float, problems: li
     keys = sorted(rows)
     if (mode == NONE).all() and all(rows[k][0] in (-1, NONE) for k in keys):
         return None
-    g = float(np.linalg.norm(gravity))
+    g = float(norm(gravity))
     # An impact slower than sqrt(2 |g| tol) would rebound less than the contact tolerance
     # high: such a hop cannot be told apart from resting contact, so it is made plastic.
     rest_speed = float(top.get("rest_speed", math.sqrt(2.0 * g * tolerance)))

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.products import inv3, matmul, norm
+
 from vrsim_cli.errors import Problem
 from vrsim_cli.maths.spatial import quat_to_matrix
 from vrsim_cli.model.mass_properties import MassPropertyError, body_mass_properties
@@ -192,7 +194,7 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
             vec = np.array(_vec3(force["force"], dim))
             in_body = force.get("frame", "world") == "body"
             if in_body and not turning:  # a fixed orientation: turn the force once, here
-                vec = quat_to_matrix(np.asarray(quat0[i], dtype=float)) @ vec
+                vec = matmul(quat_to_matrix(np.asarray(quat0[i], dtype=float)), vec)
             force_vec.append(vec)
             force_point.append(_vec3(force.get("point", [0.0] * dim), dim))
             force_has_point.append("point" in force)
@@ -210,7 +212,7 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
     kin = np.array(rot_kin, dtype=bool)
     inv = np.zeros((r, 3, 3))
     if (~kin).any():
-        inv[~kin] = np.linalg.inv(inertia_arr[~kin])
+        inv[~kin] = inv3(inertia_arr[~kin])
     moments, axes = np.linalg.eigh(inertia_arr) if r else (np.zeros((0, 3)),
                                                             np.zeros((0, 3, 3)))
     flip = np.linalg.det(axes) < 0 if r else np.zeros(0, dtype=bool)
@@ -226,11 +228,11 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
     for spring in springs:
         a = index[spring["body"]]
         pa = np.array(_vec3(spring.get("point", [0.0] * dim), dim))
-        world_a = np.array(pos0[a]) + R_full[a] @ pa
+        world_a = np.array(pos0[a]) + matmul(R_full[a], pa)
         if "to" in spring:
             b = index[spring["to"]]
             pb = np.array(_vec3(spring.get("to_point", [0.0] * dim), dim))
-            world_b = np.array(pos0[b]) + R_full[b] @ pb
+            world_b = np.array(pos0[b]) + matmul(R_full[b], pb)
         else:
             b = -1
             pb = world_b = np.array(_vec3(spring["anchor"], dim))
@@ -238,11 +240,11 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
         # spin) keeps its orientation: store its lever arm in world axes, once.
         sa.append(a)
         sb.append(b)
-        spa.append(pa if slot[a] >= 0 else R_full[a] @ pa)
-        spb.append(pb if b < 0 or slot[b] >= 0 else R_full[b] @ pb)
+        spa.append(pa if slot[a] >= 0 else matmul(R_full[a], pa))
+        spb.append(pb if b < 0 or slot[b] >= 0 else matmul(R_full[b], pb))
         sk.append(float(spring["stiffness"]))
         sc.append(float(spring.get("damping", 0.0)))
-        srest.append(float(spring.get("rest_length", np.linalg.norm(world_b - world_a))))
+        srest.append(float(spring.get("rest_length", norm(world_b - world_a))))
     kinematic_spring = any(b >= 0 and kinds[b] == BODY_KINEMATIC for b in sb)
     static_forces = not (sa or any(force_has_point) or any(force_in_body)
                          or any(torque_in_body) or lin_damp.any() or ang_damp.any())
@@ -309,11 +311,11 @@ def angular_velocity(rigid: RigidModel, R: np.ndarray, L: np.ndarray,
     Euler step without re-orthonormalisation). Kinematic bodies turn at their given rate.
     """
     if exact_inverse:
-        inertia = R @ rigid.rot_inertia @ np.swapaxes(R, -1, -2)
-        w = np.linalg.solve(inertia, L[..., None])[..., 0]
+        inertia = matmul(matmul(R, rigid.rot_inertia), np.swapaxes(R, -1, -2))
+        w = matmul(inv3(inertia), L[..., None])[..., 0]
     else:
-        body = L[:, None, :] @ R  # (R^T L)^T
-        w = (R @ (rigid.rot_inv_inertia @ body[:, 0, :, None]))[..., 0]
+        body = matmul(L[:, None, :], R)  # (R^T L)^T
+        w = matmul(R, matmul(rigid.rot_inv_inertia, body[:, 0, :, None]))[..., 0]
     if rigid.rot_kinematic.any():
         w = np.where(rigid.rot_kinematic[:, None], rigid.rot_angvel0, w)
     return w
@@ -351,7 +353,7 @@ def mechanical_energy(rigid: RigidModel, mass: np.ndarray, gravity: np.ndarray,
         w = angular_velocity(rigid, R, L)
         rot_ke = 0.5 * (L * w).sum(1)
         kinetic[rigid.rot_index] += np.where(rigid.rot_kinematic, 0.0, rot_ke)
-    per_body = kinetic - m * (x @ gravity)
+    per_body = kinetic - m * matmul(x, gravity)
     spring_total = 0.0
     if len(rigid.spring_a):
         pa, _, pb, _ = spring_ends(rigid, x, R)

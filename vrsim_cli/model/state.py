@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.products import norm
+
 from vrsim_cli.maths.spatial import look_rotation, quat_rotate
 from vrsim_cli.model.model import Model
 from vrsim_cli.model.observer import input_at
@@ -80,7 +82,7 @@ def make_state(model: Model) -> State:
         if ob.mode == "attached":  # the body's initial pose (world, or local to a parent
             i = ob.body            # until the scene graph's first update, before any sample)
             pos, quat = model.body_pos0[i].copy(), model.body_quat0[i].copy()
-            direction = np.linalg.norm(direction) * quat_rotate(quat, [0.0, 0.0, -1.0])
+            direction = norm(direction) * quat_rotate(quat, [0.0, 0.0, -1.0])
         pose = input_at(model.inputs, 0, 0.0)[1]
         if pose is not None:  # tracked: the first tracker pose
             pos, quat = pose[:3].copy(), pose[3:].copy()

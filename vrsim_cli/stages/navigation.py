@@ -26,6 +26,8 @@ import math
 
 import numpy as np
 
+from vrsim_cli.maths.products import dot, norm
+
 from vrsim_cli.maths import geometry
 from vrsim_cli.maths.spatial import (look_rotation, quat_conjugate, quat_from_axis_angle,
                                quat_multiply, quat_normalize, quat_rotate, quat_slerp,
@@ -72,11 +74,11 @@ def _walk_or_fly(model: Model, state: State, inputs: Inputs, dt: float):
     d = state.observer_dir
     up = ob.up
     if ob.mode == "walk":
-        heading = d - np.dot(d, up) * up  # walking moves in the ground plane
+        heading = d - dot(d, up) * up  # walking moves in the ground plane
     else:
         heading = d
-    norm = np.linalg.norm(heading)
-    v = inputs.alpha * ob.v_max * heading / norm if norm > 0 else np.zeros(3)
+    length = norm(heading)
+    v = inputs.alpha * ob.v_max * heading / length if length > 0 else np.zeros(3)
     d_new = _rotate_about_up(ob, d, inputs.beta * ob.gamma_max * dt)
     if ob.mode == "fly" and inputs.pitch:
         d_new = _pitch(d_new, up, inputs.pitch * ob.pitch_max * dt)
@@ -95,11 +97,11 @@ def _walk_or_fly(model: Model, state: State, inputs: Inputs, dt: float):
 
 def _pitch(d, up, angle):
     """Rotate d about the view's right axis by `angle`, stopping short of the poles."""
-    length = np.linalg.norm(d)
-    current = math.acos(max(-1.0, min(1.0, float(np.dot(d, up)) / length)))  # from up
+    length = norm(d)
+    current = math.acos(max(-1.0, min(1.0, float(dot(d, up)) / length)))  # from up
     target = min(max(current - angle, MIN_PITCH), math.pi - MIN_PITCH)
     right = np.cross(d, up)
-    if np.linalg.norm(right) == 0.0:
+    if norm(right) == 0.0:
         return d
     return quat_rotate(quat_from_axis_angle(right, current - target), d)
 
@@ -135,7 +137,7 @@ def _body_axis(model: Model, eye):
     if ob.mode != "walk":
         return eye, eye
     low = eye - (ob.eye_height - ob.step_height - ob.radius) * ob.up
-    if np.dot(low - eye, ob.up) > 0.0:  # short avatar: the capsule shrinks to a sphere
+    if dot(low - eye, ob.up) > 0.0:  # short avatar: the capsule shrinks to a sphere
         low = eye
     return low, eye
 
@@ -166,8 +168,8 @@ def _resolve_walls(model: Model, obstacles, start, proposed, horizontal: bool):
         if ob.walls == "stop":
             return start
         if horizontal:
-            normal = normal - np.dot(normal, ob.up) * ob.up
-            length = np.linalg.norm(normal)
+            normal = normal - dot(normal, ob.up) * ob.up
+            length = norm(normal)
             if length < 1e-9:  # the obstacle is straight above or below: nowhere to slide
                 return start
             normal = normal / length
@@ -197,7 +199,7 @@ def ground_height(model: Model, obstacles, eye) -> float | None:
         return None
     if best == 0.0:
         return math.inf
-    return float(np.dot(origin, ob.up)) - best
+    return float(dot(origin, ob.up)) - best
 
 
 def _follow_terrain(model: Model, state: State, obstacles, start, moved, dt):
@@ -207,8 +209,8 @@ def _follow_terrain(model: Model, state: State, obstacles, start, moved, dt):
     ground = ground_height(model, obstacles, moved)
     if ground == math.inf:  # a step higher than step_height: blocked like a wall
         moved, ground = start, ground_height(model, obstacles, start)
-    foot = float(np.dot(moved, up)) - ob.eye_height
-    gravity = float(np.dot(model.gravity, up))  # m/s^2 along up, negative when it pulls down
+    foot = float(dot(moved, up)) - ob.eye_height
+    gravity = float(dot(model.gravity, up))  # m/s^2 along up, negative when it pulls down
     fall = state.observer_fall
     if ground is not None and ground != math.inf and foot - ground <= ob.step_height \
             and fall == 0.0:
@@ -226,14 +228,14 @@ def _examine(model: Model, state: State, inputs: Inputs, dt: float):
     gamma = inputs.alpha * ob.gamma_max * dt  # about x
     delta = inputs.beta * ob.delta_max * dt  # about y
     offset = state.observer_pos - ob.look_at
-    r = float(np.linalg.norm(offset))
-    length = float(np.linalg.norm(state.observer_dir))
+    r = float(norm(offset))
+    length = float(norm(state.observer_dir))
     qx = quat_from_axis_angle([1.0, 0.0, 0.0], gamma)
     qy = quat_from_axis_angle([0.0, 1.0, 0.0], delta)
     if ob.examine_axes == "world":
         d_hat = state.observer_dir / length
         d_hat = quat_rotate(qy, quat_rotate(qx, d_hat))
-        d_hat = d_hat / np.linalg.norm(d_hat)
+        d_hat = d_hat / norm(d_hat)
         quat = look_rotation(d_hat, ob.up, state.observer_quat)
     else:  # about the camera's own axes: right-multiply (local frame), then renormalise
         quat = quat_normalize(quat_multiply(state.observer_quat, quat_multiply(qy, qx)))
@@ -246,7 +248,7 @@ def angular_velocity(q0, q1, dt: float) -> np.ndarray:
     rel = quat_multiply(q1, quat_conjugate(q0))
     if rel[0] < 0.0:
         rel = -rel
-    s = float(np.linalg.norm(rel[1:]))
+    s = float(norm(rel[1:]))
     if s == 0.0:
         return np.zeros(3)
     angle = 2.0 * math.atan2(s, rel[0])
@@ -258,7 +260,7 @@ def attach(model: Model, state: State) -> State:
     body's local -z. A function of the current state, so exact at every sample."""
     i = model.observer.body
     quat = state.body_quat[i].copy()
-    length = float(np.linalg.norm(state.observer_dir))
+    length = float(norm(state.observer_dir))
     return state.replace(observer_pos=state.body_pos[i].copy(),
                          observer_dir=length * quat_rotate(quat, [0.0, 0.0, -1.0]),
                          observer_quat=quat, observer_vel=state.body_vel[i].copy(),

@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.maths.products import matmul
+
 from vrsim_cli.maths.spatial import quat_multiply, quat_rotation_matrices
 from vrsim_cli.model.keyframes import evaluate
 from vrsim_cli.model.model import Model
@@ -115,12 +117,12 @@ def compose(anim, state: State, local) -> tuple:
         par = anim.node_parent[nodes]
         left, rot = quat_rotation_matrices(quat[par])
         # one matmul turns the three local vectors into the parent's orientation
-        arm, v_own, w_own = np.moveaxis(rot @ np.stack([lpos[nodes], lvel[nodes],
-                                                        lang[nodes]], axis=-1), -1, 0)
+        arm, v_own, w_own = np.moveaxis(matmul(rot, np.stack([lpos[nodes], lvel[nodes],
+                                                              lang[nodes]], axis=-1)), -1, 0)
         w_par = angvel[par]
         swirl = w_par[:, _YZX] * arm[:, _ZXY] - w_par[:, _ZXY] * arm[:, _YZX]  # w x arm
         pos[body] = pos[par] + arm
-        quat[body] = (left @ lquat[nodes][:, :, None])[:, :, 0]
+        quat[body] = matmul(left, lquat[nodes][:, :, None])[:, :, 0]
         vel[body] = vel[par] + swirl + v_own
         angvel[body] = w_par + w_own
     return pos, quat, vel, angvel

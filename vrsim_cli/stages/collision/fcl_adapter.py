@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.maths.products import matmul, norm
+
 from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
 from vrsim_cli.stages.collision.contacts import no_pair_contacts
 
@@ -72,7 +74,7 @@ def collision_object(cm, world, g: int):
     kind = int(cm.geom_type[g])
     if kind == PLANE:  # the half-space is already in world coordinates
         return fcl.CollisionObject(geometry(cm, g), fcl.Transform())
-    rot = world.rot[g] @ Z_TO_Y if kind in (CAPSULE, CYLINDER) else world.rot[g]
+    rot = matmul(world.rot[g], Z_TO_Y) if kind in (CAPSULE, CYLINDER) else world.rot[g]
     return fcl.CollisionObject(geometry(cm, g, world.half[g]),
                                fcl.Transform(np.asarray(rot, float),
                                              np.asarray(world.pos[g], float)))
@@ -91,7 +93,7 @@ def pair_contacts(cm, world, ia, ib, margin):
         if fcl.collide(oa, ob, request, result):
             for c in result.contacts:
                 normal = np.asarray(c.normal, float)
-                length = np.linalg.norm(normal)
+                length = norm(normal)
                 out_pair.append(p)
                 out_point.append(np.asarray(c.pos, float))
                 out_normal.append(normal / length if length > 0 else np.array([0.0, 1, 0]))

@@ -33,6 +33,9 @@ from __future__ import annotations
 
 import numpy as np
 
+# J, G are scipy sparse matrices: their products are scipy's own loops, not BLAS
+from vrsim_cli.maths.products import matmul
+
 from vrsim_cli.stages.collision.solver import Bodies
 
 
@@ -64,8 +67,8 @@ class System:
             length = np.sqrt((arm * arm).sum(1))
             tiny = np.sqrt((jac[:, 0] ** 2).sum(1)) <= 1e-12 * length
             jac[tiny, 0] = 0.0
-        rot_a = jac_a @ bodies.inv_inertia[a]  # rows I^-1 (p x d_j) (I^-1 is symmetric)
-        rot_b = jac_b @ bodies.inv_inertia[b]
+        rot_a = matmul(jac_a, bodies.inv_inertia[a])  # rows I^-1 (p x d_j) (I^-1 is symmetric)
+        rot_b = matmul(jac_b, bodies.inv_inertia[b])
         im_a = bodies.inv_mass[a, None, None]
         im_b = bodies.inv_mass[b, None, None]
         xyz = np.arange(3)

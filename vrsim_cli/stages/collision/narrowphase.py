@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.maths.products import matmul, norm
+
 from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
 from vrsim_cli.stages.collision import fcl_adapter
 from vrsim_cli.stages.collision.contacts import no_pair_contacts
@@ -190,9 +192,9 @@ def plane_vertices(cm, world, ia, ib, margin):
     """Half-space against the vertices of a convex hull or mesh: the 4 deepest."""
     out = []
     for p, (a, b) in enumerate(zip(ia.tolist(), ib.tolist())):
-        v = world.pos[b] + cm.geom_vertices[b] @ world.rot[b].T
+        v = world.pos[b] + matmul(cm.geom_vertices[b], world.rot[b].T)
         n = cm.geom_plane_normal[a]
-        depth = cm.geom_plane_offset[a] - v @ n
+        depth = cm.geom_plane_offset[a] - matmul(v, n)
         out.append(_deepest(np.array([p]), v[None], depth[None], n[None], margin))
     if not out:
         return no_pair_contacts()
@@ -378,14 +380,14 @@ def _reduce(points, depth, keep: int = 4):
     """At most `keep` well-spread points: the deepest, then farthest-point sampling."""
     unique = [0]
     for i in range(1, len(points)):
-        if min(np.linalg.norm(points[i] - points[j]) for j in unique) > 1e-9:
+        if min(norm(points[i] - points[j]) for j in unique) > 1e-9:
             unique.append(i)
     if len(unique) <= keep:
         return unique
     chosen = [max(unique, key=lambda i: depth[i])]
     while len(chosen) < keep:
         chosen.append(max((i for i in unique if i not in chosen),
-                          key=lambda i: min(np.linalg.norm(points[i] - points[j])
+                          key=lambda i: min(norm(points[i] - points[j])
                                             for j in chosen)))
     return sorted(chosen)
 

@@ -38,6 +38,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.maths.products import dot, matmul, norm
+
 from vrsim_cli.maths.rotation import cross, exp_so3, quat_from_matrix
 from vrsim_cli.model.collision import BOX
 from vrsim_cli.model.model import BODY_DYNAMIC
@@ -81,7 +83,7 @@ def bodies_of(model, state) -> solver.Bodies:
     rigid = model.rigid
     if rigid is not None and rigid.n_rot:
         R = state.rot_matrix
-        world = R @ rigid.rot_inv_inertia @ np.swapaxes(R, -1, -2)
+        world = matmul(matmul(R, rigid.rot_inv_inertia), np.swapaxes(R, -1, -2))
         inv_inertia[rigid.rot_index] = world  # kinematic: rot_inv_inertia is 0
     return solver.Bodies(inv_mass, inv_inertia, state.body_vel.copy(),
                          state.body_angvel.copy(), state.body_pos)
@@ -103,17 +105,17 @@ def write_back(model, state, bodies: solver.Bodies, stopped=None, dpos=None, dth
         idx = rigid.rot_index
         free = ~rigid.rot_kinematic
         # Impulses changed omega by I(t)^-1 (sum p x P); L changes by I(t) times that.
-        inertia = R @ rigid.rot_inertia @ np.swapaxes(R, -1, -2)
+        inertia = matmul(matmul(R, rigid.rot_inertia), np.swapaxes(R, -1, -2))
         dw = bodies.angvel[idx] - state.body_angvel[idx]
         L = L + np.where(free[:, None], np.einsum("kij,kj->ki", inertia, dw), 0.0)
         if stopped is not None:
             L = np.where(stopped[idx, None] & free[:, None], 0.0, L)
         if dtheta is not None and np.abs(dtheta[idx]).max() > 0.0:
             turn = np.where(free[:, None], dtheta[idx], 0.0)
-            R = exp_so3(turn) @ R
+            R = matmul(exp_so3(turn), R)
             quat = quat.copy()
             quat[idx] = quat_from_matrix(R)
-        inv = R @ rigid.rot_inv_inertia @ np.swapaxes(R, -1, -2)
+        inv = matmul(matmul(R, rigid.rot_inv_inertia), np.swapaxes(R, -1, -2))
         w = np.einsum("kij,kj->ki", inv, L)
         angvel = angvel.copy()
         angvel[idx] = np.where(free[:, None], w, angvel[idx])
@@ -151,7 +153,7 @@ def _slide(bodies, c: Contacts, rows) -> None:
     for k in rows.tolist():
         n = c.normal[k]
         for body, sign in ((c.body_b[k], -1.0), (c.body_a[k], 1.0)):
-            vn = float(bodies.vel[body] @ n)
+            vn = dot(bodies.vel[body], n)
             if bodies.inv_mass[body] > 0.0 and sign * vn > 0.0:
                 bodies.vel[body] = bodies.vel[body] - vn * n
 
@@ -384,7 +386,7 @@ def resting(model, start, state, last=None, c=None):
                                    sub.depth)
             eps, mu = pair_eps[rows], pair_mu[rows]
             # a resting contact comes in at |g| dt after a free-flight step: no bounce
-            bounce_speed = max(rm.rest_speed, 2.0 * float(np.linalg.norm(model.gravity)) *
+            bounce_speed = max(rm.rest_speed, 2.0 * float(norm(model.gravity)) *
                                model.dt)
             impulse[rows] = jacobi.solve(bodies, system, eps, mu, model.dt, bounce_speed,
                                          rm.iterations, _warm_start_keyed(start, sub, model))

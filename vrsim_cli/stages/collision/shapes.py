@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.products import matmul
+
 from vrsim_cli.maths.spatial import quat_multiply, quat_to_matrix
 from vrsim_cli.model.collision import CAPSULE, CONVEX, MESH, PLANE, CollisionModel
 
@@ -42,10 +44,10 @@ def place(cm: CollisionModel, body_pos, body_quat) -> WorldGeoms:
     if cm.geom_world_aabb.any():
         half = half.copy()
         for g in np.flatnonzero(cm.geom_world_aabb):
-            world = cm.geom_vertices[g] @ brot[g].T
+            world = matmul(cm.geom_vertices[g], brot[g].T)
             lo, hi = world.min(axis=0), world.max(axis=0)
             half[g] = 0.5 * (hi - lo)
-            pos[g] = pos[g] - brot[g] @ cm.geom_local_pos[g] + 0.5 * (hi + lo)
+            pos[g] = pos[g] - matmul(brot[g], cm.geom_local_pos[g]) + 0.5 * (hi + lo)
             rot[g] = np.eye(3)
     planes = cm.geom_type == PLANE
     if planes.any():  # half-spaces are given in the world frame
@@ -62,7 +64,7 @@ def aabbs(cm: CollisionModel, world: WorldGeoms) -> tuple[np.ndarray, np.ndarray
     extent[caps] += cm.geom_radius[caps, None]
     lo, hi = world.pos - extent, world.pos + extent
     for g in np.flatnonzero((kind == CONVEX) | (kind == MESH)):
-        v = cm.geom_vertices[g] @ world.rot[g].T
+        v = matmul(cm.geom_vertices[g], world.rot[g].T)
         lo[g], hi[g] = world.pos[g] + v.min(axis=0), world.pos[g] + v.max(axis=0)
     planes = kind == PLANE
     lo[planes], hi[planes] = -np.inf, np.inf

@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.products import matmul
+
 from vrsim_cli.maths.impulse import inverse_mass_along, restitution_alpha
 from vrsim_cli.maths.rotation import cross
 
@@ -322,8 +324,19 @@ def _block(bodies: Bodies, c: ContactSet, rows, upper_is_b):
     W = np.zeros((nb, 6, 6))
     W[:, :3, :3] = bodies.inv_mass[bodies_u, None, None] * np.eye(3)
     W[:, 3:, 3:] = bodies.inv_inertia[bodies_u]
-    WJt = W @ np.swapaxes(J, 1, 2)
-    return rows, c.take(rows), bodies_u, slot_body, slot, WJt, J @ WJt, (nb, kmax)
+    WJt = matmul(W, np.swapaxes(J, 1, 2))
+    return rows, c.take(rows), bodies_u, slot_body, slot, WJt, matmul(J, WJt), (nb, kmax)
+
+
+def _pinv(A):
+    """Pseudo-inverses of the symmetric blocks A (nb, m, m), singular values below 1e-10 of
+    the largest dropped: compiled Jacobi rotations (`kernels.pinv`), not LAPACK, whose
+    last bits depend on the CPU."""
+    from vrsim_cli.kernels.pinv import pinv_symmetric  # numba: scenes with stacks only
+
+    out = np.empty_like(A)
+    pinv_symmetric(np.ascontiguousarray(A, dtype=float), 1e-10, out)
+    return out
 
 
 def _block_solve(blk, b_rows, loaded=None, stick=None):
@@ -347,13 +360,12 @@ def _block_solve(blk, b_rows, loaded=None, stick=None):
     b, active, may_pull = (x.reshape(nb, 3 * kmax) for x in (b, active, may_pull))
     for _ in range(2):
         mask = active[:, :, None] & active[:, None, :]
-        lam = (np.linalg.pinv(np.where(mask, A, 0.0), rcond=1e-10) @
-               np.where(active, b, 0.0)[..., None])[..., 0]
+        lam = matmul(_pinv(np.where(mask, A, 0.0)), np.where(active, b, 0.0)[..., None])[..., 0]
         pulls = active & (lam < 0.0) & ~may_pull
         if not pulls.any():
             break
         active &= ~pulls
-    delta = (WJt @ np.where(active, lam, 0.0)[..., None])[..., 0]
+    delta = matmul(WJt, np.where(active, lam, 0.0)[..., None])[..., 0]
     return bodies_u, delta[:, :3], delta[:, 3:]
 
 

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.products import norm
+
 from vrsim_cli.model.model import BODY_DYNAMIC, Model
 from vrsim_cli.model.state import State
 
@@ -88,7 +90,7 @@ def packed(model: Model) -> np.ndarray:
     param[kd.P_STATIC_FORCES] = 1.0
     param[kd.P_HAS_EMITTERS] = model.has_emitters
     param[kd.P_TOLERANCE] = 1e-6
-    param[kd.P_WEIGHT] = float(mass.sum() * np.linalg.norm(model.gravity) * GRAVITY_SCALE_M)
+    param[kd.P_WEIGHT] = float(mass.sum() * norm(model.gravity) * GRAVITY_SCALE_M)
     param[kd.P_GROWTH_LIMIT] = ENERGY_GROWTH_LIMIT
     if rigid is not None:
         r = rigid.n_rot

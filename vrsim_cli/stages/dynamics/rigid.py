@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.maths.products import norm
+
 from vrsim_cli.errors import SimulationError
 from vrsim_cli.model.model import Model
 from vrsim_cli.model.state import State
@@ -44,7 +46,7 @@ def check(model: Model, state: State) -> None:
     per_body, kinetic, spring = energy(model, state)
     gain = per_body.sum() - baseline.sum()
     mass = np.where(np.isfinite(model.body_mass), model.body_mass, 0.0)
-    weight = float(mass.sum() * np.linalg.norm(model.gravity) * GRAVITY_SCALE_M)
+    weight = float(mass.sum() * norm(model.gravity) * GRAVITY_SCALE_M)
     bound = ENERGY_GROWTH_LIMIT * (kinetic + abs(spring) + rigid.energy0_scale + weight)
     if gain > bound:
         body = int(np.argmax(per_body - baseline))

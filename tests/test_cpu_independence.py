@@ -1,0 +1,89 @@
+"""Results do not depend on the CPU (issue 19, item 3).
+
+Every scenario is run for its first 0.2 s in a child process under environment variables
+that change which machine code numpy, OpenBLAS and numba use, and the final state hash
+(sha256 of every state array, bit for bit) must equal the one of the unchanged
+environment:
+
+- OPENBLAS_CORETYPE = Prescott, Haswell, SkylakeX, Zen: OpenBLAS's kernels for those CPUs
+  (vrsim does its small-matrix algebra itself, `maths/products.py` and `kernels/`, so no
+  result may go through BLAS or LAPACK; before that, `np.linalg.norm` of the observer's
+  direction and the `pinv` of the resting-contact solve changed keyframes.yaml and
+  stack.yaml in the last bit);
+- NPY_DISABLE_CPU_FEATURES without the AVX-512 groups, and without AVX2 as well: numpy's
+  SIMD loops for sums, norms and transcendental functions;
+- NUMBA_CPU_NAME=generic: the compiled kernels built for a generic x86-64 (no AVX, no FMA)
+  instead of this machine's CPU. A fresh kernel build costs ~15 s per integrator, so this
+  variant runs one scenario per integrator the scenarios use: verlet (dzhanibekov: the
+  rotation kernels), rk4 (projectile) and symplectic-euler (fountain).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from conftest import SCENARIOS
+
+SECONDS = 0.2
+
+CHILD = r"""
+import json, sys
+from click.testing import CliRunner
+from vrsim_cli.cli import cli
+hashes = {}
+for path in sys.argv[2:]:
+    result = CliRunner().invoke(cli, ["run", path, "--duration", sys.argv[1]],
+                                catch_exceptions=False)
+    lines = [l for l in result.stdout.splitlines() if l.startswith("state sha256:")]
+    hashes[path] = lines[0] if result.exit_code == 0 and lines else \
+        f"exit {result.exit_code}: {result.stdout[-300:]} {result.stderr[-300:]}"
+print(json.dumps(hashes))
+"""
+
+ALL = sorted(str(p) for p in SCENARIOS.glob("*.yaml"))
+GENERIC = [str(SCENARIOS / f"{name}.yaml") for name in ("dzhanibekov", "projectile",
+                                                         "fountain")]
+
+VARIANTS = {f"OPENBLAS_CORETYPE={core}": ({"OPENBLAS_CORETYPE": core}, ALL)
+            for core in ("Prescott", "Haswell", "SkylakeX", "Zen")}
+VARIANTS["numpy without AVX-512"] = (
+    {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR"}, ALL)
+VARIANTS["numpy without AVX2 and AVX-512"] = (
+    {"NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"}, ALL)
+VARIANTS["numba for a generic x86-64"] = ({"NUMBA_CPU_NAME": "generic"}, GENERIC)
+
+
+def _hashes(extra_env: dict, scenes: list[str], cwd) -> dict:
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "NUMBA_CPU_NAME",
+                        "NUMBA_CPU_FEATURES")}
+    env.update(extra_env)
+    # a scenario's outputs are relative to the current folder: a temporary one
+    proc = subprocess.run([sys.executable, "-c", CHILD, str(SECONDS), *scenes], env=env,
+                          capture_output=True, text=True, timeout=600, cwd=cwd)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads(proc.stdout.splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    found = _hashes({}, ALL, tmp_path_factory.mktemp("reference"))
+    failed = {k: v for k, v in found.items() if not v.startswith("state sha256:")}
+    assert not failed, failed
+    return found
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or os.uname().machine != "x86_64",
+                    reason="the variants name x86-64 CPUs and OpenBLAS/numpy x86 kernels")
+@pytest.mark.parametrize("variant", list(VARIANTS))
+def test_every_scenario_is_bit_identical_whatever_the_cpu_code(variant, reference, tmp_path):
+    extra, scenes = VARIANTS[variant]
+    found = _hashes(extra, scenes, tmp_path)
+    differ = {os.path.basename(k): (reference[k], found[k]) for k in scenes
+              if found[k] != reference[k]}
+    assert not differ, f"{variant} changes the result of {differ}"
