@@ -70,9 +70,13 @@ def test_sigint_mid_run_finalises_a_tum_folder(write_scene, tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "vrsim_cli", "run", str(scene), "-o",
                              str(out), "--format", "tum", "--realtime"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    # TUM files appear only when the run ends: give the process time to import and start
-    # the 60 s realtime run (imports take ~0.3 s), then interrupt it
-    time.sleep(2.5)
+    # TUM files appear only when the run ends, the folder when the writer opens: wait for
+    # it (imports and kernel loading take from 0.5 s to many seconds on a loaded machine;
+    # a signal before the writer opens exits at once, on purpose), run 1 s, interrupt
+    deadline = time.monotonic() + 60
+    while not out.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(1.0)
     assert proc.poll() is None
     proc.send_signal(signal.SIGINT)
     _stdout, stderr = proc.communicate(timeout=30)
@@ -282,3 +286,30 @@ def test_python_yaml_tags_execute_nothing(invoke, folders, tag):
         result = invoke(command, scene)
         assert result.exit_code == 2 and "YAML tag not allowed" in result.stderr
     assert not pwned.exists()
+
+
+def test_a_written_orientation_that_is_not_a_unit_quaternion_stops_the_run():
+    """Issue 19, item 7: every sample's orientations are checked, not only positions and
+    velocities. A state whose quaternion has drifted off the unit sphere (here set by
+    hand, as a bug or an overflow would) stops with the body and time named; finite
+    unit quaternions pass."""
+    import numpy as np
+
+    from vrsim_cli.errors import SimulationError
+    from vrsim_cli.loop import check_orientations
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import parse_scene
+
+    model = compile_model(parse_scene(
+        "vrsim: 1\nname: q\nduration: 0.1\nbodies:\n"
+        "  - {name: a, mass: 1, shape: {type: box, size: [1, 1, 1]}}\n"
+        "  - {name: b, mass: 1, shape: {type: box, size: [1, 2, 1]}}\n"))
+    state = make_state(model)
+    check_orientations(model, state)
+    for bad in ([1.0, 1e-4, 0, 0], [np.nan, 0, 0, 0], [0.0, 0, 0, 0]):
+        quat = state.body_quat.copy()
+        quat[1] = bad
+        with pytest.raises(SimulationError, match="orientation is not a unit quaternion") as e:
+            check_orientations(model, state.replace(body_quat=quat))
+        assert "'b'" in str(e.value) and "t = 0 s" in str(e.value)

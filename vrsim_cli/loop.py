@@ -65,11 +65,41 @@ def check_state(model: Model, state: State) -> None:
         if not np.isfinite(values).all() or np.abs(state.observer_pos).max() >= MAX_POSITION_M:
             raise SimulationError("the observer's position or velocity blew up",
                                   body="observer", t=state.t)
+        d = state.observer_dir
+        if d is not None and not (np.isfinite(d).all() and np.abs(d).max() > 0.0):
+            raise SimulationError("the observer's view direction is not finite or is zero",
+                                  body="observer", t=state.t)
+        q = state.observer_quat
+        if q is not None and not _unit(np.asarray(q, dtype=float).reshape(1, 4)).all():
+            raise SimulationError("the observer's orientation is not a unit quaternion",
+                                  body="observer", t=state.t)
     if model.n_body == 0:
         return
     _check_translation(model, state)
     if model.rigid is not None:  # rotation not finite, or energy past its bound
         rigid.check(model, state)
+    check_orientations(model, state)
+
+
+UNIT_TOLERANCE = 1e-9  # |q|^2 - 1: written orientations are normalised to ~1e-15
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    """(k,) True where the rows of v are finite unit vectors (NaN fails the comparison)."""
+    return np.abs(np.einsum("ij,ij->i", v, v) - 1.0) <= UNIT_TOLERANCE
+
+
+def check_orientations(model: Model, state: State) -> None:
+    """Every written orientation is a finite unit quaternion: a sample that is not names
+    the body (a bug or a blow-up that the position checks did not see)."""
+    unit = _unit(state.body_quat)
+    if not unit.all():
+        body = int(np.argmin(unit))
+        q = state.body_quat[body]
+        raise SimulationError(f"orientation is not a unit quaternion (|q| = "
+                              f"{float(np.sqrt(np.einsum('i,i->', q, q))):.6g}): the rotation "
+                              f"blew up; try a smaller dt or another integrator",
+                              body=model.body_name[body], t=state.t)
 
 
 def _check_translation(model: Model, state: State) -> None:
@@ -193,6 +223,7 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
         result.state = good
         if failure is not None:
             raise_failure(model, failure)
+        check_orientations(model, good)  # the kernel checked positions and velocities
         return good
 
     def one_step(s: State) -> State:
