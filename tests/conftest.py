@@ -31,13 +31,30 @@ def write_scene(tmp_path):
     return write
 
 
+@pytest.fixture(scope="session")
+def _kernels_compiled():
+    """Compile (or load from the cache) every integrator's kernel once, before the first CLI
+    test: on a fresh machine the first run of each integrator prints a compile notice on
+    stderr, which tests that read stderr line by line must not depend on. The notice itself
+    is tested in test_cli.py."""
+    from vrsim_cli.kernels.dynamics import INTEGRATOR_CODES
+    from vrsim_cli.loop import prepare
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.scene.spec import parse_scene
+
+    for name in INTEGRATOR_CODES:
+        prepare(compile_model(parse_scene(
+            f"vrsim: 1\nname: warm\nduration: 0.1\ndt: 0.01\nintegrator: {name}\n"
+            "bodies: [{name: b, mass: 1.0}]\n")))
+
+
 @pytest.fixture
 def runner():
     return CliRunner()
 
 
 @pytest.fixture
-def invoke(runner):
+def invoke(runner, _kernels_compiled):
     """invoke(*args) -> click Result of `vrsim ARGS` run in-process."""
     from vrsim_cli.cli import cli
 

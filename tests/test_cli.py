@@ -358,3 +358,18 @@ def test_the_foundation_issues_example_scene_runs_and_says_what_is_unused(invoke
            "effect without a top-level collision block" in result.stderr
     assert "dt = 0.001 s does not divide the frame interval 1/90 s" in result.stderr
     assert set(read_trajectory(tmp_path / "ball.mcap").tracks) == {"ball", "observer"}
+
+
+def test_compile_notice_reports_only_what_this_run_compiled(invoke, write_scene, tmp_path,
+                                                             monkeypatch):
+    """A process that compiled kernels earlier (an API user, this suite on a fresh machine)
+    must not announce that compile again on every later run: the notice is the seconds
+    compiled by this run's prepare, not the process total."""
+    from vrsim_cli.kernels import jit
+
+    scene = write_scene(BALL)
+    assert invoke("run", scene, "-o", tmp_path / "warm.csv").exit_code == 0
+    monkeypatch.setattr(jit._WATCH, "seconds", jit._WATCH.seconds + 31.0)  # an earlier compile
+    result = invoke("run", scene, "-o", tmp_path / "o.csv")
+    assert result.exit_code == 0
+    assert "compiled in" not in result.stderr, result.stderr

@@ -98,15 +98,18 @@ def prepare(model: Model, say: Callable[..., None] | None = None) -> None:
     is opened: a run's first step pays nothing for them."""
     if model.n_body == 0:
         return
+    from vrsim_cli.kernels import jit
+
+    # the process total before and after: only what this run compiled is reported (an
+    # API user or a test running many scenes in one process hears it once)
+    before = jit.compile_report()
     if _stepped(model):  # the stepped stage integrates the bodies itself
         from vrsim_cli.stages.collision import stepped
 
         stepped.prepare(model, dynamics)
     else:
         dynamics.prepare(model)
-    from vrsim_cli.kernels import jit
-
-    seconds = jit.compile_report()
+    seconds = jit.compile_report() - before
     if seconds > 0.0 and say is not None:
         say(f"vrsim: compiled in {seconds:.1f} s (kept for the next runs)", err=True)
 
