@@ -402,7 +402,8 @@ def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
     approaches faster than `bounce` and would close within the step: all its approaching
     points in one Gauss-Seidel solve to convergence, each normal towards -eps v_n (v_n its
     approach velocity before this impact, at the step's start: the current one less the
-    kick), the slower ones towards 0, with Coulomb friction. Returns whether it acted.
+    kick), the slower ones towards -gap/dt (they arrive), with Coulomb friction; a plastic
+    impact (eps 0) also aims at -gap/dt: it lands on the surface. Returns whether it acted.
     lam (>= 3 (c1 - c0),): scratch."""
     fast = False
     m = c1 - c0
@@ -414,11 +415,16 @@ def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
         vn = rel3(K, i, U, Wv)[0] - K[i, K_KICK]
         if vn < -APPROACH_EPS and K[i, K_GAP] + dt * (vn + K[i, K_KICK]) < 0.0:
             eps = K[i, K_EPS] if K[i, K_PASSES] < MAX_ELASTIC_PASSES else 0.0
+            # the target: Newton's law; a plastic one lands on the surface (closes the gap
+            # exactly) instead of stopping short of it (as Box2D v3, which skips its
+            # restitution pass for eps = 0); an elastic one turns at the step's start, up
+            # to eps |v_n| dt short of the surface (docs/collision-response.md)
+            arrive = -max(K[i, K_GAP], 0.0) / dt
             if vn < -bounce:
                 fast = True
-                lam[3 * q + 1] = -eps * vn  # the target
+                lam[3 * q + 1] = -eps * vn if eps > 0.0 else arrive
             else:
-                lam[3 * q + 1] = 0.0
+                lam[3 * q + 1] = arrive
             lam[3 * q] = 0.0
     if not fast:
         return False
@@ -985,11 +991,14 @@ def _make_entry(integ: int, kinds: tuple):
             k += kn
             if rnd == 0:
                 k0 = k
-                warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv)
             starts = np.empty(k - first_new + 1, np.int64)
             npairs = pair_starts(K, k, first_new, starts)
             impacts(K, starts, npairs, 0, dt, bounce, U, Wv, changed)
             if rnd == 0:
+                # after the impacts: they read the start-of-step approach velocities, which
+                # last step's resting impulses must not change (an impulse the rest would
+                # take back again is otherwise bounced on: energy gain in piles)
+                warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv)
                 slide(K, k, dt, inv_m, U, DP)
             if rested:  # pairs found after the rest: rest again with them
                 rest(K, k, dt, int(prm[PR_ITER]), U, Wv)
