@@ -48,7 +48,7 @@ class ResponseModel:
     rest_speed: m/s, impacts slower than this are plastic (eps = 0)
     iterations, position_iterations: of the resting-contact solver; slop: m
     impacts: "located" (each impact found in time, exact) or "stepped" (all contacts of
-    the step's end solved together by `collision.jacobi`)
+    the step solved together by `kernels.stepped`: speculative contacts)
     """
 
     body_mode: np.ndarray
