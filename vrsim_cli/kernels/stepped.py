@@ -402,11 +402,18 @@ def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
     approaches faster than `bounce` and would close within the step: all its approaching
     points in one Gauss-Seidel solve to convergence, each normal towards -eps v_n (v_n its
     approach velocity before this impact, at the step's start: the current one less the
-    kick), the slower ones towards -gap/dt (they arrive), with Coulomb friction; a plastic
-    impact (eps 0) also aims at -gap/dt: it lands on the surface. Returns whether it acted.
+    kick), the slower ones towards -gap/dt (they arrive; gap: the pair's smallest), with Coulomb
+    friction; a plastic impact (eps 0) also aims at -gap/dt: it lands on the surface. Returns whether it acted.
     lam (>= 3 (c1 - c0),): scratch."""
     fast = False
     m = c1 - c0
+    # a pair arrives as a whole: every point may close at most the pair's smallest gap
+    # (points aiming at their own gaps would spin the body to meet them all: a bullet box
+    # spun at 1e4 rad/s and went through a wall)
+    gap = math.inf
+    for q in range(m):
+        gap = min(gap, K[c0 + q, K_GAP])
+    arrive = -max(gap, 0.0) / dt
     for q in range(m):
         i = c0 + q
         lam[3 * q] = -1.0  # not in this impact
@@ -419,7 +426,6 @@ def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
             # exactly) instead of stopping short of it (as Box2D v3, which skips its
             # restitution pass for eps = 0); an elastic one turns at the step's start, up
             # to eps |v_n| dt short of the surface (docs/collision-response.md)
-            arrive = -max(K[i, K_GAP], 0.0) / dt
             if vn < -bounce:
                 fast = True
                 lam[3 * q + 1] = -eps * vn if eps > 0.0 else arrive
