@@ -83,7 +83,8 @@ K_DEPTH = 56  # m, as detected
 K_P = 57  # m, contact point (midpoint of the witness points), world
 K_WNA, K_WNB, K_W1A, K_W1B, K_W2A, K_W2B = 60, 63, 66, 69, 72, 75  # I^-1 (arm x direction)
 K_IMA, K_IMB = 78, 79  # inverse masses, 1/kg
-K_SIZE = 80
+K_SN = 80  # shock propagation's impulses on the upper body (normal, two tangents), N s
+K_SIZE = 83
 
 MAX_ELASTIC_PASSES = 32  # impacts per contact in a step before its restitution drops to 0
 MAX_IMPACT_SWEEPS = 64  # sweeps over the pairs of the impact phase
@@ -299,6 +300,8 @@ def prepare(K, i, C, q, S, inv_m, IW, V0, W0, U, Wv, rb, rp, prm):
     for j in range(3):
         K[i, K_KICK + j] = rel(K, i, j, U, Wv) - rel(K, i, j, V0, W0)
     for c in range(K_LN, K_SEND + 1):
+        K[i, c] = 0.0
+    for c in range(K_SN, K_SN + 3):
         K[i, c] = 0.0
 
 
@@ -586,6 +589,143 @@ def rel_linear(K, i, U):
     return la.dot(la.sub(kd.row3(U, b, 0), kd.row3(U, a, 0)), n)
 
 
+# ----------------------------------------------------------------------------- shock
+
+
+SHOCK_ITERATIONS = 16  # Gauss-Seidel sweeps per level of the shock pass
+
+
+@kernel
+def contact_levels(K, k, inv_m, tol, level):
+    """level (n,) int64: each body's distance in touching contacts (gap <= tol, a mode
+    that pushes) from a body that does not move (level 0); n + 1 when it touches none
+    (a cluster in the air). Bellman-Ford over the contacts."""
+    n = level.shape[0]
+    for b in range(n):
+        level[b] = 0 if inv_m[b] == 0.0 else n + 1
+    changed = True
+    while changed:
+        changed = False
+        for i in range(k):
+            mode = int(K[i, K_MODE])
+            if (mode != IMPULSE and mode != SLIDE) or K[i, K_GAP] > tol:
+                continue
+            a, b = int(K[i, K_A]), int(K[i, K_B])
+            if level[a] + 1 < level[b]:
+                level[b] = level[a] + 1
+                changed = True
+            if level[b] + 1 < level[a]:
+                level[a] = level[b] + 1
+                changed = True
+
+
+@kernel
+def level_order(K, k, level, between):
+    """Rows of K ordered by the lower level of their two bodies, ground up (a counting
+    sort, stable); `between`: only contacts whose bodies' levels differ. Returns
+    (order, m)."""
+    n = level.shape[0]
+    count = np.zeros(n + 3, np.int64)
+    for i in range(k):
+        la, lb = level[int(K[i, K_A])], level[int(K[i, K_B])]
+        if between and la == lb:
+            continue
+        count[min(la, lb) + 1] += 1
+    for c in range(1, n + 3):
+        count[c] += count[c - 1]
+    order = np.empty(k, np.int64)
+    m = 0
+    for i in range(k):
+        la, lb = level[int(K[i, K_A])], level[int(K[i, K_B])]
+        if between and la == lb:
+            continue
+        lv = min(la, lb)
+        order[count[lv]] = i
+        count[lv] += 1
+        m += 1
+    return order, m
+
+
+@kernel(inline="always")
+def _upper_mass(K, i, j, upper_b, im):
+    """1 / effective mass along direction j of contact i for its upper body alone."""
+    arm = (K_RNB if upper_b else K_RNA) + 6 * j
+    wv = (K_WNB if upper_b else K_WNA) + 6 * j
+    return im + K[i, arm] * K[i, wv] + K[i, arm + 1] * K[i, wv + 1] + \
+        K[i, arm + 2] * K[i, wv + 2]
+
+
+@kernel(inline="always")
+def _shock_apply(K, i, j, upper_b, u, sgn, im, dl, U, Wv, DP, DL):
+    """An impulse dl along direction j of contact i on its upper body u only."""
+    if dl == 0.0:
+        return
+    d = K_N + 3 * j
+    arm = (K_RNB if upper_b else K_RNA) + 6 * j
+    wv = (K_WNB if upper_b else K_WNA) + 6 * j
+    for c in range(3):
+        U[u, c] += sgn * dl * im * K[i, d + c]
+        Wv[u, c] += sgn * dl * K[i, wv + c]
+        DP[u, c] += sgn * dl * K[i, d + c]
+        DL[u, c] += sgn * dl * K[i, arm + c]
+
+
+@kernel
+def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL):
+    """Shock propagation (Guendelman, Bridson & Fedkiw 2003) on velocities, after the
+    rest iterations: level by level from the ground up, each contact between two levels
+    solved with its lower body frozen (infinite mass: the impulse acts on the upper body
+    only), normal towards v_n >= -max(gap, 0)/dt and friction in the Coulomb disc of all
+    the contact's normal impulse. The iterations' leftover error then cannot make a
+    stack sink, whatever the mass ratio (a 100 kg box on a 1 kg slab). `order` (m,): the
+    contacts between levels, ground up (`level_order`)."""
+    q0 = 0
+    while q0 < m:
+        i0 = order[q0]
+        lv = min(level[int(K[i0, K_A])], level[int(K[i0, K_B])])
+        q1 = q0
+        while q1 < m and min(level[int(K[order[q1], K_A])],
+                             level[int(K[order[q1], K_B])]) == lv:
+            q1 += 1
+        for _ in range(iterations):
+            for q in range(q0, q1):
+                i = order[q]
+                mode = int(K[i, K_MODE])
+                if mode != IMPULSE:
+                    continue
+                a, b = int(K[i, K_A]), int(K[i, K_B])
+                upper_b = level[b] > level[a]
+                u = b if upper_b else a
+                sgn = 1.0 if upper_b else -1.0
+                im = K[i, K_IMB] if upper_b else K[i, K_IMA]
+                if im == 0.0:
+                    continue
+                for j in range(3):
+                    mass = _upper_mass(K, i, j, upper_b, im)
+                    if mass <= 0.0:
+                        continue
+                    v = rel(K, i, j, U, Wv)
+                    old = K[i, K_SN + j]
+                    if j == 0:
+                        new = max(old + (-max(K[i, K_GAP], 0.0) / dt - v) / mass, 0.0)
+                    else:
+                        new = old - v / mass
+                        if j == 2:  # both tangents: the whole friction in the disc
+                            limit = K[i, K_MU] * (K[i, K_LN] + K[i, K_IN] + K[i, K_SN])
+                            t1 = K[i, K_LT] + K[i, K_IT] + K[i, K_SN + 1]
+                            t2 = K[i, K_LT + 1] + K[i, K_IT + 1] + new
+                            norm = math.sqrt(t1 * t1 + t2 * t2)
+                            if norm > limit:
+                                scale = limit / norm
+                                _shock_apply(K, i, 1, upper_b, u, sgn, im,
+                                             t1 * scale - t1, U, Wv, DP, DL)
+                                K[i, K_SN + 1] += t1 * scale - t1
+                                new = t2 * scale - (K[i, K_LT + 1] + K[i, K_IT + 1])
+                    _shock_apply(K, i, j, upper_b, u, sgn, im, new - old, U, Wv, DP, DL)
+                    K[i, K_SN + j] = new
+        q0 = q1
+
+
 # ----------------------------------------------------------------------------- positions
 
 
@@ -613,10 +753,11 @@ def moved(mf, b, r, S, RS, S1, RS1):
 
 
 @kernel
-def push_out(mf, K, k, iterations, slop, inv_m, IW, S1, RS1, dx, dth):
+def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, dth):
     """The position pass: pseudo-impulses Q >= 0 along the normals (Gauss-Seidel on the
-    linearised separations) until every contact that ends deeper than `slop` is back at
-    -slop; then the bodies are moved by dx and turned by exp(dth), their angular momentum
+    linearised separations, the contacts ground up in `order` (k,), and with shock
+    propagation: a contact between two `level`s moves its upper body only) until every
+    contact that ends deeper than `slop` is back at -slop; then the bodies are moved by dx and turned by exp(dth), their angular momentum
     turned with them (body-frame L kept, so the kinetic energy is unchanged), and no
     velocity changes. dx, dth (n, 3): scratch."""
     n = S1.shape[0]
@@ -633,7 +774,8 @@ def push_out(mf, K, k, iterations, slop, inv_m, IW, S1, RS1, dx, dth):
     if not any_deep:
         return
     for _ in range(iterations):
-        for i in range(k):
+        for o in range(k):
+            i = order[o]
             mode = int(K[i, K_MODE])
             if mode != IMPULSE and mode != SLIDE:
                 continue
@@ -642,18 +784,31 @@ def push_out(mf, K, k, iterations, slop, inv_m, IW, S1, RS1, dx, dth):
             sep = K[i, K_SEND] + la.dot(la.sub(kd.row3(dx, b, 0), kd.row3(dx, a, 0)), nrm) \
                 + la.dot(get(K, i, K_RNB), kd.row3(dth, b, 0)) \
                 - la.dot(get(K, i, K_RNA), kd.row3(dth, a, 0))
-            new = max(K[i, K_Q] - (sep + slop) * K[i, K_MN], 0.0)
+            ima, imb = inv_m[a], inv_m[b]
+            inv_k = K[i, K_MN]
+            if level[a] != level[b]:  # shock propagation: the lower body stays
+                upper_b = level[b] > level[a]
+                if upper_b:
+                    ima = 0.0
+                else:
+                    imb = 0.0
+                mass = _upper_mass(K, i, 0, upper_b, imb if upper_b else ima)
+                inv_k = 1.0 / mass if mass > 0.0 else 0.0
+            new = max(K[i, K_Q] - (sep + slop) * inv_k, 0.0)
             q = new - K[i, K_Q]
             if q == 0.0:
                 continue
             K[i, K_Q] = new
-            wb = la.matvec(kd.row9(IW, b, 0), la.scale(q, get(K, i, K_RNB)))
-            wa = la.matvec(kd.row9(IW, a, 0), la.scale(q, get(K, i, K_RNA)))
-            for c in range(3):
-                dx[b, c] += inv_m[b] * q * nrm[c]
-                dx[a, c] -= inv_m[a] * q * nrm[c]
-                dth[b, c] += wb[c]
-                dth[a, c] -= wa[c]
+            if imb != 0.0:
+                wb = la.matvec(kd.row9(IW, b, 0), la.scale(q, get(K, i, K_RNB)))
+                for c in range(3):
+                    dx[b, c] += imb * q * nrm[c]
+                    dth[b, c] += wb[c]
+            if ima != 0.0:
+                wa = la.matvec(kd.row9(IW, a, 0), la.scale(q, get(K, i, K_RNA)))
+                for c in range(3):
+                    dx[a, c] -= ima * q * nrm[c]
+                    dth[a, c] -= wa[c]
     for b in range(n):
         for c in range(3):
             S1[b, kd.S_POS + c] += dx[b, c]
@@ -800,6 +955,8 @@ def outputs(K, k, tol):
                 OUT[m, O_D] = K[q, K_DEPTH]
                 impact = K[q, K_IN] != 0.0 or K[q, K_IT] != 0.0 or K[q, K_IT + 1] != 0.0
                 OUT[m, O_TOI] = 0.0 if impact else math.nan
+                # (shock impulses, K_SN, act on one body: not part of the pair's impulse,
+                # and warm starting from them made a 10-box stack rock)
                 ln = K[q, K_LN] + K[q, K_IN]
                 l1 = K[q, K_LT] + K[q, K_IT]
                 l2 = K[q, K_LT + 1] + K[q, K_IT + 1]
@@ -1009,6 +1166,10 @@ def _make_entry(integ: int, kinds: tuple):
             if rested:  # pairs found after the rest: rest again with them
                 rest(K, k, dt, int(prm[PR_ITER]), U, Wv)
             rnd += 1
+        level = np.empty(n, np.int64)
+        contact_levels(K, k, inv_m, tol, level)
+        order, m_order = level_order(K, k, level, True)
+        shock(K, order, m_order, level, dt, SHOCK_ITERATIONS, U, Wv, DP, DL)
         wrench(K, k, DP, DL)
         # the impulses as a constant wrench over the step: the integrator applies them
         for b in range(n):
@@ -1038,6 +1199,35 @@ def _make_entry(integ: int, kinds: tuple):
             if h_prop < 0.0:
                 return np.empty((0, O_SIZE)), 0, h_prop
         kd.post_step(mf, body_frame, step, dt, RS, S1, RS1)
+        if integ != kd.SYMPLECTIC_EULER:
+            # a body that took a contact impulse moves with symplectic Euler in this step:
+            # the contact solve's model is x1 = x0 + dt v1 (verlet's or rk4's average
+            # velocity would carry only half of an impulse into the position, and the
+            # position pass then rocked a 10-box stack); free bodies keep the order of the
+            # scene's integrator
+            touched = np.zeros(n, np.bool_)
+            any_touched = False
+            for b in range(n):
+                for c in range(3):
+                    if DP[b, c] != 0.0 or DL[b, c] != 0.0:
+                        touched[b] = True
+                if touched[b]:
+                    any_touched = True
+            if any_touched:
+                Sx, RSx = np.empty_like(S1), np.empty_like(RS1)
+                for b in range(n):
+                    for c in range(kd.S_QUAT, kd.S_QUAT + 4):
+                        Sx[b, c] = S[b, c]
+                kd.step_symplectic(mf, step, t, dt, S, RS, ext, Sx, RSx, wb, wr, ratios)
+                kd.post_step(mf, False, step, dt, RS, Sx, RSx)
+                for b in range(n):
+                    if touched[b] and inv_m[b] != 0.0:
+                        for c in range(kd.S_SIZE):
+                            S1[b, c] = Sx[b, c]
+                        slot = kd.slot_of(mf, b)
+                        if slot >= 0:
+                            for c in range(kd.RS_SIZE):
+                                RS1[slot, c] = RSx[slot, c]
         if KIN.shape[0]:  # kinematic bodies where the scene graph put them
             ob = int(mf[kd.H_BODY])
             for b in range(n):
@@ -1065,8 +1255,9 @@ def _make_entry(integ: int, kinds: tuple):
                         RS1[slot, kd.RS_L + c] = 0.0
         end_separations(mf, K, k, S, RS, S1, RS1)
         dx, dth = np.empty((n, 3)), np.empty((n, 3))
-        push_out(mf, K, k, int(prm[PR_POS_ITER]), prm[PR_SLOP], inv_m, IW, S1, RS1, dx,
-                 dth)
+        everything, _ = level_order(K, k, level, False)
+        push_out(mf, K, k, everything, level, int(prm[PR_POS_ITER]), prm[PR_SLOP], inv_m,
+                 IW, S1, RS1, dx, dth)
         sort_rows(K, k)
         OUT, m_out = outputs(K, k, tol)
         return OUT, m_out, h_prop

@@ -78,9 +78,16 @@ def tables(model: Model, dynamics) -> dict:
     rb[:, ks.RB_MODE] = rm.body_mode
     rb[:, ks.RB_EPS] = rm.body_restitution
     rb[:, ks.RB_MU] = rm.body_friction
-    for g in range(cm.n_geom):  # a body's reach from its centre of mass
+    # how far turning moves a body's surface per rad, from its centre of mass: a sphere's
+    # surface does not move when it turns about its centre (only its offset counts), a
+    # capsule's is its segment's end; the rest their farthest point. (Rolling spheres
+    # otherwise doubled their sweep, and a pile's candidate pairs with it.)
+    offset = np.linalg.norm(cm.geom_local_pos, axis=1)
+    turning = np.where(kind == SPHERE, offset,
+                       np.where(kind == CAPSULE, offset + cm.geom_half[:, 1], rbound))
+    for g in range(cm.n_geom):
         b = cm.geom_body[g]
-        rb[b, ks.RB_RBOUND] = max(rb[b, ks.RB_RBOUND], rbound[g])
+        rb[b, ks.RB_RBOUND] = max(rb[b, ks.RB_RBOUND], turning[g])
     rp = np.zeros((len(rm.pair_key), ks.RP_SIZE))
     rp[:, ks.RP_KEY] = rm.pair_key
     rp[:, ks.RP_MODE] = rm.pair_mode
