@@ -593,6 +593,7 @@ def rel_linear(K, i, U):
 
 
 SHOCK_ITERATIONS = 16  # Gauss-Seidel sweeps per level of the shock pass
+STICK_MARGIN = 1.0 - 1e-9  # friction below this share of its limit: the contact sticks
 
 
 @kernel
@@ -675,7 +676,8 @@ def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL):
     """Shock propagation (Guendelman, Bridson & Fedkiw 2003) on velocities, after the
     rest iterations: level by level from the ground up, each contact between two levels
     solved with its lower body frozen (infinite mass: the impulse acts on the upper body
-    only), normal towards v_n >= -max(gap, 0)/dt and friction in the Coulomb disc of all
+    only), normal towards v_n >= -max(gap, 0)/dt (v_n = that for a contact that carries
+    resting load: it may pull back what the rest pushed) and friction in the Coulomb disc of all
     the contact's normal impulse. The iterations' leftover error then cannot make a
     stack sink, whatever the mass ratio (a 100 kg box on a 1 kg slab). `order` (m,): the
     contacts between levels, ground up (`level_order`)."""
@@ -700,14 +702,27 @@ def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL):
                 im = K[i, K_IMB] if upper_b else K[i, K_IMA]
                 if im == 0.0:
                     continue
-                for j in range(3):
+                # friction only where the rest found the contact sticking (its friction
+                # inside the cone): against a frozen lower body, friction at a sliding
+                # or rolling contact spun a pile's spheres up
+                lt1 = K[i, K_LT] + K[i, K_IT]
+                lt2 = K[i, K_LT + 1] + K[i, K_IT + 1]
+                sticks = K[i, K_LN] > 0.0 and math.sqrt(lt1 * lt1 + lt2 * lt2) < \
+                    STICK_MARGIN * K[i, K_MU] * (K[i, K_LN] + K[i, K_IN])
+                for j in range(3 if sticks else 1):
                     mass = _upper_mass(K, i, j, upper_b, im)
                     if mass <= 0.0:
                         continue
                     v = rel(K, i, j, U, Wv)
                     old = K[i, K_SN + j]
                     if j == 0:
-                        new = max(old + (-max(K[i, K_GAP], 0.0) / dt - v) / mass, 0.0)
+                        # a contact that carries load (the rest gave it an impulse) may
+                        # also be held from separating, down to no resting impulse at
+                        # all: a stack that rocks is held as well as one that sinks (an
+                        # impact's impulse stays: a bounce is not pulled back)
+                        floor = -K[i, K_LN]
+                        new = max(old + (-max(K[i, K_GAP], 0.0) / dt - v) / mass,
+                                  min(floor, 0.0))
                     else:
                         new = old - v / mass
                         if j == 2:  # both tangents: the whole friction in the disc
