@@ -84,12 +84,16 @@ K_P = 57  # m, contact point (midpoint of the witness points), world
 K_WNA, K_WNB, K_W1A, K_W1B, K_W2A, K_W2B = 60, 63, 66, 69, 72, 75  # I^-1 (arm x direction)
 K_IMA, K_IMB = 78, 79  # inverse masses, 1/kg
 K_SN = 80  # shock propagation's impulses on the upper body (normal, two tangents), N s
-K_SIZE = 83
+K_LK = 83  # impact impulses with the bodies' turning locked (normal, two tangents), N s
+K_SIZE = 86
 
 MAX_ELASTIC_PASSES = 32  # impacts per contact in a step before its restitution drops to 0
 MAX_IMPACT_SWEEPS = 64  # sweeps over the pairs of the impact phase
 IMPACT_ITERATIONS = 100  # Gauss-Seidel iterations of one pair's impact (to convergence)
 IMPACT_CONVERGED = 1e-14  # relative change of the impulses that ends them
+MAX_IMPACT_TURN = 0.25 * math.pi  # rad: an impact that would turn a body more in one step
+# is solved with its turning locked (a linearised corner impact of a fast box spun it at
+# ~1e4 rad/s, and it passed through a thin wall in the next step)
 MAX_ROUNDS = 4  # searches for pairs a body knocked faster than its sweep
 SWEEP_GROWTH = 1.5  # a knocked body's new sweep: this times its travel (no re-search for
 # the last ulps)
@@ -301,7 +305,7 @@ def prepare(K, i, C, q, S, inv_m, IW, V0, W0, U, Wv, rb, rp, prm):
         K[i, K_KICK + j] = rel(K, i, j, U, Wv) - rel(K, i, j, V0, W0)
     for c in range(K_LN, K_SEND + 1):
         K[i, c] = 0.0
-    for c in range(K_SN, K_SN + 3):
+    for c in range(K_SN, K_LK + 3):
         K[i, c] = 0.0
 
 
@@ -371,6 +375,14 @@ def wrench(K, k, DP, DL):
                 DP[a, c] -= lam * K[i, d + c]
                 DL[b, c] += lam * K[i, cb + c]
                 DL[a, c] -= lam * K[i, ca + c]
+        for j in range(3):  # impacts with turning locked: no torque
+            lam = K[i, K_LK + j]
+            if lam == 0.0:
+                continue
+            d = K_N + 3 * j
+            for c in range(3):
+                DP[b, c] += lam * K[i, d + c]
+                DP[a, c] -= lam * K[i, d + c]
 
 
 @kernel(inline="always")
@@ -437,6 +449,11 @@ def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
             lam[3 * q] = 0.0
     if not fast:
         return False
+    a, b = int(K[c0, K_A]), int(K[c0, K_B])
+    saved = np.empty((4, 3))
+    for c in range(3):
+        saved[0, c], saved[1, c] = U[a, c], U[b, c]
+        saved[2, c], saved[3, c] = Wv[a, c], Wv[b, c]
     tl = np.zeros((m, 3))  # accumulated impulses of this impact: n, t1, t2
     for _ in range(IMPACT_ITERATIONS):
         change, size = 0.0, 0.0
@@ -461,6 +478,15 @@ def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
             size = max(size, new)
         if change <= IMPACT_CONVERGED * size:
             break
+    turn = 0.0
+    for c in range(3):
+        turn = max(turn, abs(Wv[a, c] - saved[2, c]), abs(Wv[b, c] - saved[3, c]))
+    if turn * dt > MAX_IMPACT_TURN / math.sqrt(3.0):  # (a component bound of |dw| dt)
+        for c in range(3):
+            U[a, c], U[b, c] = saved[0, c], saved[1, c]
+            Wv[a, c], Wv[b, c] = saved[2, c], saved[3, c]
+        _locked_impact(K, c0, m, lam, tl, U, Wv)
+        return True
     for q in range(m):
         if lam[3 * q] < 0.0:
             continue
@@ -470,6 +496,67 @@ def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
         K[i, K_IT + 1] += tl[q, 2]
         K[i, K_PASSES] += 1.0
     return True
+
+
+@kernel
+def _locked_impact(K, c0, m, lam, tl, U, Wv):
+    """The impact of `impact_pair` with the bodies' turning locked: the impulses change
+    linear velocities only (effective mass 1 / (1/m_a + 1/m_b) along every direction),
+    with the same targets and Coulomb friction; kept in K_LK (no torque in `wrench`).
+    A pure translation meets every point's target: no point approaches too fast, and
+    the kinetic energy does not grow (a central impact of two particles)."""
+    a, b = int(K[c0, K_A]), int(K[c0, K_B])
+    im = K[c0, K_IMA] + K[c0, K_IMB]
+    if im <= 0.0:
+        return
+    for q in range(m):
+        tl[q, 0] = tl[q, 1] = tl[q, 2] = 0.0
+    for _ in range(IMPACT_ITERATIONS):
+        change, size = 0.0, 0.0
+        for q in range(m):
+            if lam[3 * q] < 0.0:
+                continue
+            i = c0 + q
+            vn = rel3(K, i, U, Wv)[0] - K[i, K_KICK]
+            new = max(tl[q, 0] + (lam[3 * q + 1] - vn) / im, 0.0)
+            d0 = new - tl[q, 0]
+            tl[q, 0] = new
+            _linear(K, i, 0, d0, U)
+            _, vt1, vt2 = rel3(K, i, U, Wv)
+            s1 = tl[q, 1] - (vt1 - K[i, K_KICK + 1]) / im
+            s2 = tl[q, 2] - (vt2 - K[i, K_KICK + 2]) / im
+            limit = K[i, K_MU] * new
+            norm = math.sqrt(s1 * s1 + s2 * s2)
+            if norm > limit:
+                scale = limit / norm if norm > 0.0 else 0.0
+                s1, s2 = s1 * scale, s2 * scale
+            d1, d2 = s1 - tl[q, 1], s2 - tl[q, 2]
+            tl[q, 1], tl[q, 2] = s1, s2
+            _linear(K, i, 1, d1, U)
+            _linear(K, i, 2, d2, U)
+            change = max(change, abs(d0), abs(d1), abs(d2))
+            size = max(size, new)
+        if change <= IMPACT_CONVERGED * size:
+            break
+    for q in range(m):
+        if lam[3 * q] < 0.0:
+            continue
+        i = c0 + q
+        for j in range(3):
+            K[i, K_LK + j] += tl[q, j]
+        K[i, K_PASSES] += 1.0
+
+
+@kernel(inline="always")
+def _linear(K, i, j, lam, U):
+    """An impulse lam along direction j of contact i on the linear velocities only."""
+    if lam == 0.0:
+        return
+    a, b = int(K[i, K_A]), int(K[i, K_B])
+    d = K_N + 3 * j
+    for c in range(3):
+        U[b, c] += lam * K[i, K_IMB] * K[i, d + c]
+        U[a, c] -= lam * K[i, K_IMA] * K[i, d + c]
 
 
 @kernel
@@ -956,6 +1043,7 @@ def outputs(K, k, tol):
         keep = False
         while j < k and K[j, K_A] == K[i, K_A] and K[j, K_B] == K[i, K_B]:
             if K[j, K_DEPTH] >= -tol or K[j, K_LN] != 0.0 or K[j, K_IN] != 0.0 or \
+                    K[j, K_LK] != 0.0 or \
                     K[j, K_LT] != 0.0 or K[j, K_LT + 1] != 0.0 or K[j, K_IT] != 0.0 or \
                     K[j, K_IT + 1] != 0.0:
                 keep = True
@@ -968,13 +1056,14 @@ def outputs(K, k, tol):
                     OUT[m, O_P + c] = K[q, K_P + c]
                     OUT[m, O_N + c] = K[q, K_N + c]
                 OUT[m, O_D] = K[q, K_DEPTH]
-                impact = K[q, K_IN] != 0.0 or K[q, K_IT] != 0.0 or K[q, K_IT + 1] != 0.0
+                impact = K[q, K_IN] != 0.0 or K[q, K_IT] != 0.0 or \
+                    K[q, K_IT + 1] != 0.0 or K[q, K_LK] != 0.0
                 OUT[m, O_TOI] = 0.0 if impact else math.nan
                 # (shock impulses, K_SN, act on one body: not part of the pair's impulse,
                 # and warm starting from them made a 10-box stack rock)
-                ln = K[q, K_LN] + K[q, K_IN]
-                l1 = K[q, K_LT] + K[q, K_IT]
-                l2 = K[q, K_LT + 1] + K[q, K_IT + 1]
+                ln = K[q, K_LN] + K[q, K_IN] + K[q, K_LK]
+                l1 = K[q, K_LT] + K[q, K_IT] + K[q, K_LK + 1]
+                l2 = K[q, K_LT + 1] + K[q, K_IT + 1] + K[q, K_LK + 2]
                 for c in range(3):
                     OUT[m, O_IMP + c] = ln * K[q, K_N + c] + l1 * K[q, K_T1 + c] + \
                         l2 * K[q, K_T2 + c]
