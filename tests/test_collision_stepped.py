@@ -194,7 +194,12 @@ def test_validate_says_which_impacts_a_scene_gets(invoke, tmp_path):
     path.write_text(many)
     result = invoke("validate", path)
     assert result.exit_code == 0
-    assert result.stdout.rstrip().endswith("symplectic-euler, stepped impacts)")
+    assert result.stdout.rstrip().endswith(
+        f"symplectic-euler, stepped impacts (auto: {AUTO_LOCATED_BODIES + 1} dynamic bodies "
+        f"with a shape, more than {AUTO_LOCATED_BODIES}))")
+    path.write_text(box_of_spheres(3, 0.1, impacts="stepped")[0])
+    result = invoke("validate", path)
+    assert result.stdout.rstrip().endswith("stepped impacts (set in the scene))")
 
 
 def test_a_ball_ending_a_step_just_above_the_ground_bounces_its_full_speed():
