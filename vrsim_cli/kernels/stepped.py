@@ -946,17 +946,6 @@ def pair_starts(K, k, first, starts):
 
 
 @kernel
-def grow_rows(A, k, extra):
-    if k + extra <= A.shape[0]:
-        return A
-    bigger = np.zeros((2 * A.shape[0] + extra, A.shape[1]))
-    for q in range(k):
-        for c in range(A.shape[1]):
-            bigger[q, c] = A[q, c]
-    return bigger
-
-
-@kernel
 def has_pair(K, k0, k, a, b):
     """Whether K holds a contact of bodies (a, b): rows [0, k0) are sorted by pair
     (binary search), rows [k0, k) were appended (scanned)."""
@@ -1251,7 +1240,7 @@ def _make_entry(integ: int, kinds: tuple):
                             Wv[b, c] = 0.0
                             V0[b, c] = 0.0
                             W0[b, c] = 0.0
-            K = grow_rows(K, k, kn)
+            K = kc._grow(K, k, kn)
             for q in range(kn):
                 prepare(K, k + q, C, q, S, inv_m, IW, V0, W0, U, Wv, rb, rp, prm)
             first_new = k
@@ -1362,7 +1351,8 @@ def _make_entry(integ: int, kinds: tuple):
         everything, _ = level_order(K, k, level, False)
         push_out(mf, K, k, everything, level, int(prm[PR_POS_ITER]), prm[PR_SLOP], inv_m,
                  IW, S1, RS1, dx, dth)
-        sort_rows(K, k)
+        if k > k0:  # rows of later rounds were appended: sort them in
+            sort_rows(K, k)
         OUT, m_out = outputs(K, k, tol)
         return OUT, m_out, h_prop
 
