@@ -1096,7 +1096,8 @@ def _counting_order(keys, k, buckets, within):
 @kernel
 def sort_by_pair(C, k):
     """Rows [0, k) of C sorted by (body_a, body_b), stably (a pair's points keep their
-    order): two counting sorts (by b, then by a), no comparison sort."""
+    order): two counting sorts (by b, then by a), no comparison sort. Any table whose
+    columns 0 and 1 are the two bodies (kernels.stepped's contact table too)."""
     nb = 1
     ka = np.empty(k, np.int64)
     kb = np.empty(k, np.int64)
@@ -1108,9 +1109,9 @@ def sort_by_pair(C, k):
     for q in range(k):
         rows[q] = q
     order = _counting_order(ka, k, nb, _counting_order(kb, k, nb, rows))
-    out = np.empty((max(k, C.shape[0]), C_SIZE))
+    out = np.empty((max(k, C.shape[0]), C.shape[1]))
     for q in range(k):
-        for c in range(C_SIZE):
+        for c in range(C.shape[1]):
             out[q, c] = C[order[q], c]
     return out
 

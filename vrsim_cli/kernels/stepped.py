@@ -991,29 +991,6 @@ def expand_pairs(gf, lo, hi, step, grown, K, k0, k):
     return P, m
 
 
-@kernel
-def sort_rows(K, k):
-    """Rows [0, k) of K sorted by (body_a, body_b), stably: two counting sorts."""
-    nb = 1
-    ka = np.empty(k, np.int64)
-    kb = np.empty(k, np.int64)
-    for q in range(k):
-        ka[q] = int(K[q, K_A])
-        kb[q] = int(K[q, K_B])
-        nb = max(nb, kb[q] + 1)
-    rows = np.empty(k, np.int64)
-    for q in range(k):
-        rows[q] = q
-    order = kc._counting_order(ka, k, nb, kc._counting_order(kb, k, nb, rows))
-    tmp = np.empty((k, K_SIZE))
-    for q in range(k):
-        for c in range(K_SIZE):
-            tmp[q, c] = K[order[q], c]
-    for q in range(k):
-        for c in range(K_SIZE):
-            K[q, c] = tmp[q, c]
-
-
 # output rows
 O_A, O_B, O_P, O_N, O_D, O_TOI, O_IMP, O_SIZE = 0, 1, 2, 5, 8, 9, 10, 13
 
@@ -1351,8 +1328,8 @@ def _make_entry(integ: int, kinds: tuple):
         everything, _ = level_order(K, k, level, False)
         push_out(mf, K, k, everything, level, int(prm[PR_POS_ITER]), prm[PR_SLOP], inv_m,
                  IW, S1, RS1, dx, dth)
-        if k > k0:  # rows of later rounds were appended: sort them in
-            sort_rows(K, k)
+        if k > k0:  # rows of later rounds were appended: sort them in (K_A, K_B are
+            K = kc.sort_by_pair(K, k)  # columns 0 and 1, as in detection's rows)
         OUT, m_out = outputs(K, k, tol)
         return OUT, m_out, h_prop
 
