@@ -173,10 +173,14 @@ def test_vrsim_stack_row_stands_still():
     # Ten boxes at rest on the ground for 0.2 s: shock propagation keeps the top box in
     # place to round-off (measured 1e-14 m over 0.5 s; tests/test_collision_response.py
     # holds it over 10 s), so 1e-9 m and 1e-9 rad are far inside any real motion.
-    (row,) = bench.vrsim_stack(0.2, (1 / 60,), 1)
+    # The stepped row (compiled, 8 iterations): tests/test_stepped.py holds stacks to
+    # 1e-5 m over 10 s; over 0.2 s 1e-6 m.
+    row, stepped = bench.vrsim_stack(0.2, (1 / 60,), 1)
     assert (row.engine, row.bodies, row.steps) == ("vrsim", 10, 12)
     assert row.sanity["drift_m"] < 1e-9 and row.sanity["tilt_rad"] < 1e-9
     assert row.wall_s > 0 and "1/60 s" in row.setting
+    assert (stepped.bodies, stepped.steps) == (10, 12) and "stepped" in stepped.setting
+    assert stepped.sanity["drift_m"] < 1e-6 and stepped.sanity["tilt_rad"] < 1e-6
 
 
 def test_throughput_rows_and_their_report():

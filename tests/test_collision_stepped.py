@@ -1,8 +1,9 @@
-"""Stepped impacts (`collision.impacts: stepped`, collision/jacobi.py): every contact of a
-step's end solved together by projected Jacobi with mass splitting. Checked against
-closed forms where one contact decides (a single contact per body converges in one
-iteration: its split mass is its mass), conservation laws, and the sanity of a pile of
-spheres in a closed box (what `vrsim bench`'s spheres problem runs)."""
+"""Stepped impacts (`collision.impacts: stepped`, kernels/stepped.py): speculative
+contacts, impacts at the step's start, sequential impulses, one compiled call per step.
+Checked against closed forms where one contact decides, conservation laws, and the sanity
+of a pile of spheres in a closed box (what `vrsim bench`'s spheres problem runs). The old
+numpy solver (projected Jacobi with mass splitting) is kept as tests/reference_jacobi.py:
+its one-contact closed form is checked here, tests/test_stepped.py compares the kernel."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from vrsim_cli.model.model import compile_model
 from vrsim_cli.model.response import AUTO_LOCATED_BODIES
 from vrsim_cli.model.state import make_state
 from vrsim_cli.scene.spec import parse_scene
-from vrsim_cli.stages.collision import jacobi
+import reference_jacobi as jacobi
 from vrsim_cli.stages.collision.solver import Bodies
 
 from conftest import Steps, simulate
@@ -68,23 +69,32 @@ bodies:
 
 
 @pytest.mark.parametrize("eps", [0.0, 0.5, 0.8, 1.0])
-def test_a_ball_leaves_the_ground_at_eps_times_its_speed_at_the_step_end(eps):
-    """Stepped impacts apply restitution to the velocity the contact has at the end of
-    the step that found it (first order in dt, unlike located impacts): after that step
-    the ball's vertical velocity is exactly -eps times the free-flight one (one contact
-    with a static body: exact in one iteration; round-off 1e-12), and the penetration is
-    removed (the ball's bottom is back at the ground to 1e-12 m)."""
+def test_a_ball_turns_at_eps_times_its_speed_at_the_step_start(eps):
+    """Stepped impacts are speculative (Box2D v3): the step whose free flight would take
+    the ball into the ground turns it at the step's start, with Newton's restitution on
+    its approach velocity v0 there; symplectic Euler then adds the step's gravity, so its
+    vertical velocity after that step is exactly -eps v0 - g dt (one contact with a static
+    body: round-off, 1e-12); eps = 0 lands it on the ground (the speculative bound closes
+    the gap exactly), at rest from the next step on; it never goes below the ground (bottom >= -1e-12 m)."""
     model = compile_model(parse_scene(ball_scene(eps)))
     rec = Steps()
     run(model, make_state(model), rec)
     states = rec.states
-    k = next(i for i, s in enumerate(states) if s.body_vel[1, 1] >= 0.0 and i > 0)
     from vrsim_cli.stages.dynamics import motion as dynamics
 
-    free = dynamics.step(model, states[k - 1])  # the step without response
-    assert free.body_pos[1, 1] < 0.1  # it did penetrate
-    assert abs(states[k].body_vel[1, 1] - (-eps * free.body_vel[1, 1])) <= 1e-12
-    assert abs(states[k].body_pos[1, 1] - 0.1) <= 1e-12
+    # the first step whose free flight would take the ball into the ground
+    k = next(i for i in range(1, len(states))
+             if dynamics.step(model, states[i - 1]).body_pos[1, 1] < 0.1)
+    v0 = states[k - 1].body_vel[1, 1]
+    assert v0 < -1.0
+    if eps > 0.0:
+        assert abs(states[k].body_vel[1, 1] - (-eps * v0 - G * model.dt)) <= 1e-12
+    else:  # plastic: it ends that step on the ground and stays there, at rest
+        for s in states[k:]:
+            assert abs(s.body_pos[1, 1] - 0.1) <= 1e-12
+        for s in states[k + 1:]:
+            assert abs(s.body_vel[1, 1]) <= 1e-12
+    assert min(s.body_pos[1, 1] for s in states) >= 0.1 - 1e-12
 
 
 def test_sliding_turns_into_rolling_at_five_sevenths():
@@ -184,22 +194,29 @@ def test_validate_says_which_impacts_a_scene_gets(invoke, tmp_path):
     path.write_text(many)
     result = invoke("validate", path)
     assert result.exit_code == 0
-    assert result.stdout.rstrip().endswith("symplectic-euler, stepped impacts)")
+    assert result.stdout.rstrip().endswith(
+        f"symplectic-euler, stepped impacts (auto: {AUTO_LOCATED_BODIES + 1} dynamic bodies "
+        f"with a shape, more than {AUTO_LOCATED_BODIES}))")
+    path.write_text(box_of_spheres(3, 0.1, impacts="stepped")[0])
+    result = invoke("validate", path)
+    assert result.stdout.rstrip().endswith("stepped impacts (set in the scene))")
 
 
-def test_a_gap_the_step_would_close_bounces_now():
-    """A ball arriving at 2 m/s whose step ends 0.5 mm above the ground (inside the 1 mm
-    tolerance) bounces in that step: it leaves at exactly eps times its end-of-step speed
-    (one contact with a static body: round-off, 1e-12), instead of being slowed to
-    gap/dt first and bouncing that (found by review)."""
+def test_a_ball_ending_a_step_just_above_the_ground_bounces_its_full_speed():
+    """A ball arriving at 2 m/s whose first step ends 0.5 mm above the ground (inside the
+    1 mm tolerance): that step is free flight (it does not reach the ground), and the next
+    turns it with its full speed, -eps v1 - g dt (round-off, 1e-12), instead of being
+    slowed to gap/dt first and bouncing that (found by review)."""
     eps, dt, v0 = 0.8, 0.01, -2.0
     v1 = v0 - G * dt  # symplectic Euler: the velocity first
     y0 = 0.1 + 0.0005 - v1 * dt  # so the first step ends 0.5 mm above the ground
     model = compile_model(parse_scene(ball_scene(eps, velocity=(0, v0, 0), y=y0)))
     rec = Steps()
     run(model, make_state(model), rec)
-    first = rec.states[1]
-    assert abs(first.body_vel[1, 1] - (-eps * v1)) <= 1e-12
+    first, second = rec.states[1], rec.states[2]
+    assert abs(first.body_vel[1, 1] - v1) <= 1e-12
+    assert abs(first.body_pos[1, 1] - (0.1 + 0.0005)) <= 1e-12
+    assert abs(second.body_vel[1, 1] - (-eps * v1 - G * dt)) <= 1e-12
 
 
 @pytest.mark.parametrize("frame_rate", [60, 30])

@@ -400,7 +400,8 @@ def validate(scene_files, quiet):
                 click.echo(f"error: {line}", err=True)
             continue
         if not quiet:
-            impacts = f", {model.response.impacts} impacts" if model.response else ""
+            impacts = (f", {model.response.impacts} impacts ({model.response.impacts_why})"
+                       if model.response else "")
             click.echo(f"{printable(file)}: ok ({plural(model.n_body, 'body')}, "
                        f"{model.duration:g} s in {plural(model.n_steps, 'step')} of "
                        f"{model.dt:.6g} s, "

@@ -133,10 +133,22 @@ def prepare(model: Model, say: Callable[..., None] | None = None) -> None:
     # the process total before and after: only what this run compiled is reported (an
     # API user or a test running many scenes in one process hears it once)
     before = jit.compile_report()
-    dynamics.prepare(model)
+    if _stepped(model):  # the stepped stage integrates the bodies itself
+        from vrsim_cli.stages.collision import stepped
+
+        stepped.prepare(model, dynamics)
+    else:
+        dynamics.prepare(model)
     seconds = jit.compile_report() - before
     if seconds > 0.0 and say is not None:
         say(f"vrsim: compiled in {seconds:.1f} s (kept for the next runs)", err=True)
+
+
+def _stepped(model: Model) -> bool:
+    """Stepped impacts: collision response integrates the whole step (one compiled call:
+    contacts, impulses, the integrator, positions), so the loop's free-flight step is not
+    made (`collision.stepped`)."""
+    return model.response is not None and model.response.impacts == "stepped"
 
 
 def run(model: Model, state: State, writer=None, *, realtime: bool = False,
@@ -177,6 +189,11 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
         if model.response is not None:  # response detects for itself (impacts, rest)
             from vrsim_cli.stages.collision import response
             detect, respond = None, response.step
+    stepped = _stepped(model)
+    respond_with = dynamics.advance  # response integrates cut steps with it
+    if stepped:  # many bodies: one compiled call makes the whole step, forces included,
+        from vrsim_cli.stages.collision import stepped as stepped_stage  # with the
+        respond, respond_with = stepped_stage.step, dynamics  # dynamics' packed model
     # keyframes, drives or parents move bodies: the scene graph stage runs
     animate = model.animation is not None and model.animation.has_motion
     per_step = animate or detect is not None or respond is not None
@@ -228,7 +245,10 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
 
     def one_step(s: State) -> State:
         t0 = clock()
-        new = dynamics.step(model, s)  # 2.1 dynamic motion
+        if stepped:  # 2.1 happens in 2.3: only the clock moves here
+            new = s.replace(step=s.step + 1, t=(s.step + 1) * model.dt)
+        else:
+            new = dynamics.step(model, s)  # 2.1 dynamic motion
         t1 = clock()
         profile["dynamics"] += t1 - t0
         if animate:  # 2.1 kinematic motion and 3. scene graph at the new time
@@ -237,7 +257,7 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
             profile["scenegraph"] += t2 - t1
             t1 = t2
         if respond is not None:  # 2.3 collision: detection and response
-            new = respond(model, s, new, dynamics.advance)
+            new = respond(model, s, new, respond_with)
             t2 = clock()
             profile["collision"] += t2 - t1
             t1 = t2

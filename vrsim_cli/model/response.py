@@ -50,7 +50,7 @@ class ResponseModel:
     rest_speed: m/s, impacts slower than this are plastic (eps = 0)
     iterations, position_iterations: of the resting-contact solver; slop: m
     impacts: "located" (each impact found in time, exact) or "stepped" (all contacts of
-    the step's end solved together by `collision.jacobi`)
+    the step solved together by `kernels.stepped`: speculative contacts)
     """
 
     body_mode: np.ndarray
@@ -65,6 +65,7 @@ class ResponseModel:
     position_iterations: int
     slop: float
     impacts: str = "located"
+    impacts_why: str = "set in the scene"  # said by `vrsim validate`
 
     def pair_values(self, a, b):
         """(mode (k,) int64, restitution (k,), friction (k,)) of body pairs a < b."""
@@ -129,11 +130,14 @@ def compile_response(scene, n_body: int, gravity, tolerance: float, problems: li
     # high: such a hop cannot be told apart from resting contact, so it is made plastic.
     rest_speed = float(top.get("rest_speed", math.sqrt(2.0 * g * tolerance)))
     impacts = top.get("impacts", "auto")
+    why = "set in the scene"
     if impacts == "auto":
         shaped = sum(1 for b in bodies if b.get("shape") is not None
                      and b.get("type", "dynamic") == "dynamic") + \
             sum(int(e.get("count", 0)) for e in data.get("emitters") or [])  # spheres too
         impacts = "located" if shaped <= AUTO_LOCATED_BODIES else "stepped"
+        why = (f"auto: {shaped} dynamic bodies with a shape, "
+               f"{'at most' if impacts == 'located' else 'more than'} {AUTO_LOCATED_BODIES}")
     stepped = impacts == "stepped"
     return ResponseModel(
         body_mode=mode, body_restitution=eps, body_friction=mu,
@@ -148,4 +152,5 @@ def compile_response(scene, n_body: int, gravity, tolerance: float, problems: li
                                         if stepped else DEFAULT_POSITION_ITERATIONS)),
         slop=float(top.get("slop", DEFAULT_SLOP)),
         impacts=impacts,
+        impacts_why=why,
     )

@@ -38,13 +38,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from vrsim_cli.maths.products import dot, matmul, norm
+from vrsim_cli.maths.products import dot, matmul
 
 from vrsim_cli.maths.rotation import cross, exp_so3, quat_from_matrix
 from vrsim_cli.model.collision import BOX
 from vrsim_cli.model.model import BODY_DYNAMIC
 from vrsim_cli.model.response import IMPULSE, NONE, SLIDE, STOP
-from vrsim_cli.stages.collision import jacobi, solver
+from vrsim_cli.stages.collision import solver
 from vrsim_cli.stages.collision.broadphase import broad_phase
 from vrsim_cli.stages.collision.contacts import Contacts, planar, to_contacts
 from vrsim_cli.stages.collision.continuous import pair_distance, swept_contacts
@@ -319,29 +319,6 @@ def _warm_start(before, c: Contacts, model):
     return vec
 
 
-def _warm_start_keyed(before, c: Contacts, model):
-    """As `_warm_start`, matching by pair and rank within the pair instead of by distance
-    (linear in the number of contacts, for stepped impacts: a pair keeps its number of
-    contact points from step to step while it rests, and narrow phase orders them)."""
-    old, imp = before.contacts, before.contact_impulse
-    if old is None or imp is None or not len(old) or not len(c):
-        return None
-    keep = np.isnan(old.toi)
-
-    def keys(a, b):
-        pair = a * model.n_body + b  # contacts come sorted by pair
-        first = np.searchsorted(pair, pair, side="left")
-        return pair * 64 + np.minimum(np.arange(len(pair)) - first, 63)
-
-    key_old = keys(old.body_a[keep], old.body_b[keep])
-    if not len(key_old):
-        return None
-    key_new = keys(c.body_a, c.body_b)
-    row = np.minimum(np.searchsorted(key_old, key_new), len(key_old) - 1)
-    hit = key_old[row] == key_new
-    return np.where(hit[:, None], imp[keep][row], 0.0)
-
-
 def resting(model, start, state, last=None, c=None):
     """Resting contact at the end of a step (`state`; `start`: the step's start, for warm
     starting; `last`: the state after the step's last impact, default `start`: a `stop`
@@ -373,29 +350,17 @@ def resting(model, start, state, last=None, c=None):
                     dpos[body] = np.where(np.abs(push) > np.abs(dpos[body]), push,
                                           dpos[body])
     rows = np.flatnonzero(mode == IMPULSE)
-    stepped = rm.impacts == "stepped"
-    if len(rows) and not stepped:  # a gap closing fast is the next step's impact, located
+    if len(rows):  # a gap closing fast is the next step's impact, located
         closing = (c.depth[rows] < 0.0) & (_approach(bodies, c, rows) < -rm.rest_speed)
         rows = rows[~closing]
     dtheta = np.zeros((model.n_body, 3))
     if len(rows):
         sub = Contacts(*(getattr(c, f)[rows] for f in (
             "body_a", "body_b", "point", "normal", "depth", "toi")))
-        if stepped:  # impacts and rest in one parallel solve (restitution included)
-            system = jacobi.System(bodies, sub.body_a, sub.body_b, sub.point, sub.normal,
-                                   sub.depth)
-            eps, mu = pair_eps[rows], pair_mu[rows]
-            # a resting contact comes in at |g| dt after a free-flight step: no bounce
-            bounce_speed = max(rm.rest_speed, 2.0 * float(norm(model.gravity)) *
-                               model.dt)
-            impulse[rows] = jacobi.solve(bodies, system, eps, mu, model.dt, bounce_speed,
-                                         rm.iterations, _warm_start_keyed(start, sub, model))
-            dp, dth = jacobi.correct_positions(system, rm.slop, rm.position_iterations)
-        else:
-            cs = _contact_set(model, bodies, c, rows)
-            warm = _warm_start(start, sub, model)
-            impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm)
-            dp, dth = solver.correct_positions(bodies, cs, rm.slop, rm.position_iterations)
+        cs = _contact_set(model, bodies, c, rows)
+        warm = _warm_start(start, sub, model)
+        impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm)
+        dp, dth = solver.correct_positions(bodies, cs, rm.slop, rm.position_iterations)
         dpos += dp
         dtheta += dth
     if stopped.any():
@@ -424,9 +389,6 @@ def step(model, before, after, advance):
     """One physics step with collision response. `after`: the free-flight step from
     `before` (dynamics and scene graph); `advance(model, state, h)`: the dynamics
     integrated over h <= dt from `state` (the loop passes `dynamics.advance`)."""
-    if model.response.impacts == "stepped":  # no impact is located: rest solves all
-        new, c, impulse = resting(model, before, after)
-        return new.replace(contacts=c, contact_impulse=impulse)
     prev = before.contacts if before.contacts is not None else detect(model, before)
     at_end = np.isnan(prev.toi)  # the impact rows are from earlier in the last step
     prev = Contacts(*(getattr(prev, f)[at_end] for f in (

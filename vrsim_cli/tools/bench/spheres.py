@@ -119,8 +119,9 @@ def vrsim_spheres(quick: bool, repeats: int) -> list[dict]:
         pos0, vel0, half, height = layout(n)
         first = len(walls(half, height))  # the scene lists the walls, then the spheres
         dyn = slice(first, first + n)
-        rows.append(row("vrsim", f"stepped impacts, {model.response.iterations}+"
-                        f"{model.response.position_iterations} Jacobi iterations", n, s.step,
+        rows.append(row("vrsim", f"stepped impacts (compiled, speculative), "
+                        f"{model.response.iterations}+{model.response.position_iterations} "
+                        f"Gauss-Seidel iterations", n, s.step,
                         wall, sanity(s.body_pos[dyn], s.body_vel[dyn], s.body_angvel[dyn],
                                      pos0, vel0, half, height)))
     return rows

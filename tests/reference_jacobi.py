@@ -1,4 +1,5 @@
-"""The contact solver of stepped impacts: projected Jacobi with mass splitting.
+"""Reference (tests only): the numpy contact solver stepped impacts used before
+kernels/stepped.py, projected Jacobi with mass splitting.
 
 Used by `response.step` when `collision.impacts` is `stepped` (many bodies: a pile of
 spheres, a box full of debris), where locating every impact in time would cut the step

@@ -1,0 +1,1336 @@
+"""Stepped impacts, compiled: one whole step of many colliding bodies in one call.
+
+`collision.impacts: stepped` (docs/collision-response.md, "Stepped impacts"). From the
+state S at the step's start, one call of `entry(...)` does:
+
+1. the kick: the velocities v* = v0 + dt a after the step's forces (kernels.dynamics);
+2. speculative detection (`kernels.collide`): every pair whose gap is within what the
+   two bodies can travel in the step (sweep_a + sweep_b, sweep = dt (|v| + |w| rbound)
+   with the larger of the start and kicked speeds) plus the tolerance;
+3. impacts, at the step's start: a contact that approaches faster than the bounce speed
+   (rest_speed) and would close within the step takes Newton's restitution relative to
+   its approach velocity at the step's start, with Coulomb friction; all points of one
+   pair (a face, an edge) in one solve taken to convergence, the pairs one after the
+   other in order of contact with repeats while any pair still approaches (propagation of
+   impulses, Guendelman, Bridson & Fedkiw 2003: a Newton's cradle passes its impulse down
+   the chain), restitution 0 for a contact after MAX_ELASTIC_PASSES impulses;
+4. rest: sequential impulses (Gauss-Seidel, warm-started) on the kicked velocities with
+   the speculative bound: the normal velocity at the end of the step may close the gap g
+   exactly, v_n >= -max(g, 0)/dt, and friction in the Coulomb cone (a disc, so sliding
+   opposes the sliding velocity);
+5. if a body now moves farther than its sweep, its missing pairs are found and the solve
+   goes on (a ball knocked by another must not tunnel through a wall it was not tested
+   against);
+6. the impulses go to the integrator as a constant wrench (impulse / dt per body), so the
+   integrator that the scene chose advances positions and rotations (Brax-style deltas);
+7. positions: whatever the integrator's own update left penetrating (verlet, rk4 and
+   dopri5 move with the average of the start and end velocities, so an impulse moves a
+   body only half as far as symplectic Euler's) is pushed out along the normals by
+   pseudo-velocities (a position-only Gauss-Seidel): positions and orientations change,
+   velocities do not, and a body turned by it keeps its body-frame angular momentum, so
+   its kinetic energy is unchanged.
+
+Why restitution relative to the start of the step, and not to the kicked velocity as in
+Box2D: with symplectic Euler the energy of a step with contact impulses P applied at the
+step's start is E1 - E0 = KE(v0 + M^-1 J^T P) - KE(v0) - dt^2 |f|^2_{M^-1}/2 under constant
+forces f (docs/collision-response.md has the derivation), so impacts that do not gain
+kinetic energy (eps <= 1) give a step that does not gain energy. Restitution on v* would
+add the step's gravity work to every bounce (a ball with eps = 1 gains ~2 m g dt |v| per
+bounce).
+
+Layout (as kernels.dynamics): the model of the dynamics mf, the geometry table gf
+(kernels.collide), the response tables rb (n, RB_SIZE) [mode, eps, mu, rbound] (NaN:
+not set) and rp (p, RP_SIZE) [key a * n + b, mode (-1: not set), eps, mu] sorted by key,
+the parameters prm (PR_SIZE), the state rows S (n, 13), RS (r, 12). Contacts live in a
+table K (k, K_SIZE) with named columns.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from vrsim_cli.kernels import collide as kc
+from vrsim_cli.kernels import dynamics as kd
+from vrsim_cli.kernels import linalg as la
+from vrsim_cli.kernels.jit import kernel
+
+NONE, STOP, SLIDE, IMPULSE = range(4)  # as model.response
+RB_MODE, RB_EPS, RB_MU, RB_RBOUND, RB_SIZE = 0, 1, 2, 3, 4
+RP_KEY, RP_MODE, RP_EPS, RP_MU, RP_SIZE = 0, 1, 2, 3, 4
+PR_DT, PR_TOL, PR_BOUNCE, PR_ITER, PR_POS_ITER, PR_SLOP, PR_PLANAR, PR_H_PROP, \
+    PR_DEF_EPS, PR_DEF_MU, PR_STEP, PR_T = range(12)
+PR_SIZE = 12
+
+# contact table K (k, K_SIZE)
+K_A, K_B = 0, 1
+K_N, K_T1, K_T2 = 2, 5, 8  # basis: normal A -> B, two tangents
+K_RNA, K_RNB, K_R1A, K_R1B, K_R2A, K_R2B = 11, 14, 17, 20, 23, 26  # arm x direction
+K_RA, K_RB = 29, 32  # arms from the centres of mass to the witness points, m
+K_MN = 35  # 1 / K along n
+K_KT = 36  # the tangent block K_t: t1t1, t1t2, t2t2
+K_FSTEP = 39  # 1 / largest eigenvalue of K_t: the step of the friction projection
+K_EPS, K_MU, K_MODE = 40, 41, 42
+K_GAP = 43  # m, the gap at the step's start (-depth)
+K_KICK = 44  # m/s: the kick's change of the relative velocity along n, t1, t2
+K_LN, K_LT = 47, 48  # resting impulses (normal, two tangents), N s
+K_IN, K_IT = 50, 51  # impact impulses (normal, two tangents), N s
+K_PASSES = 53  # impacts this contact took part in
+K_Q = 54  # position pass: accumulated pseudo-impulse
+K_SEND = 55  # m, the separation after the integrator moved the bodies
+K_DEPTH = 56  # m, as detected
+K_P = 57  # m, contact point (midpoint of the witness points), world
+K_WNA, K_WNB, K_W1A, K_W1B, K_W2A, K_W2B = 60, 63, 66, 69, 72, 75  # I^-1 (arm x direction)
+K_IMA, K_IMB = 78, 79  # inverse masses, 1/kg
+K_SN = 80  # shock propagation's impulses on the upper body (normal, two tangents), N s
+K_LK = 83  # impact impulses with the bodies' turning locked (normal, two tangents), N s
+K_SIZE = 86
+
+MAX_ELASTIC_PASSES = 32  # impacts per contact in a step before its restitution drops to 0
+MAX_IMPACT_SWEEPS = 64  # sweeps over the pairs of the impact phase
+IMPACT_ITERATIONS = 100  # Gauss-Seidel iterations of one pair's impact (to convergence)
+IMPACT_CONVERGED = 1e-14  # relative change of the impulses that ends them
+MAX_IMPACT_TURN = 0.25 * math.pi  # rad: an impact that would turn a body more in one step
+# is solved with its turning locked (a linearised corner impact of a fast box spun it at
+# ~1e4 rad/s, and it passed through a thin wall in the next step)
+MAX_ROUNDS = 4  # searches for pairs a body knocked faster than its sweep
+SWEEP_GROWTH = 1.5  # a knocked body's new sweep: this times its travel (no re-search for
+# the last ulps)
+APPROACH_EPS = 1e-12  # m/s: slower is not approaching
+
+
+# ----------------------------------------------------------------------------- bodies
+
+
+@kernel
+def body_tables(mf, step, S, RS, inv_m, IW):
+    """inv_m (n,) 1/kg of the bodies that move (dynamic and in the scene), else 0; IW
+    (n, 9) the world inverse inertia R I^-1 R^T of the freely turning ones, else 0."""
+    n = S.shape[0]
+    ob = int(mf[kd.H_BODY])
+    for b in range(n):
+        i = ob + b * kd.B_SIZE
+        moving = mf[i + kd.B_DYNAMIC] != 0.0 and mf[i + kd.B_EMIT] <= step
+        inv_m[b] = mf[i + kd.B_INV_MASS] if moving else 0.0
+        for c in range(9):
+            IW[b, c] = 0.0
+    for k in range(RS.shape[0]):
+        i = kd.at(mf, kd.H_ROT, k, kd.RT_SIZE)
+        b = int(mf[i + kd.RT_INDEX])
+        if mf[i + kd.RT_KINEMATIC] != 0.0 or inv_m[b] == 0.0:
+            continue
+        W = la.sandwich(kd.row9(RS, k, kd.RS_R), kd.mat9(mf, i + kd.RT_INV_INERTIA))
+        for c in range(9):
+            IW[b, c] = W[c]
+
+
+@kernel
+def kick(mf, step, t, dt, S, RS, inv_m, IW, acc, M, Wr, ext0, V0, W0, U, Wv):
+    """Start velocities V0, W0 (n, 3) and the kicked ones U, Wv = v0 + dt a, w0 + dt
+    I^-1 M (world), the forces of kernels.dynamics at the step's start (no contact)."""
+    n = S.shape[0]
+    if int(mf[kd.H_S]):
+        kd.omegas(mf, RS, Wr)
+    kd.forces(mf, step, t, S, RS, Wr, ext0, acc, M)
+    for b in range(n):
+        for c in range(3):
+            V0[b, c] = S[b, kd.S_VEL + c]
+            W0[b, c] = S[b, kd.S_ANGVEL + c]
+            U[b, c] = V0[b, c] + dt * acc[b, c]
+            Wv[b, c] = W0[b, c]
+    for k in range(RS.shape[0]):
+        i = kd.at(mf, kd.H_ROT, k, kd.RT_SIZE)
+        b = int(mf[i + kd.RT_INDEX])
+        if mf[i + kd.RT_KINEMATIC] != 0.0 or inv_m[b] == 0.0:
+            continue
+        dw = la.matvec(kd.row9(IW, b, 0), la.scale(dt, kd.row3(M, k, 0)))
+        for c in range(3):
+            Wv[b, c] = W0[b, c] + dw[c]
+
+
+@kernel
+def sweeps(dt, V0, W0, U, Wv, rb, out):
+    """out (n,) m: how far a point of each body can move in the step, dt (|v| + |w|
+    rbound) with the larger of the start and the current speeds."""
+    for b in range(V0.shape[0]):
+        v = max(la.norm(kd.row3(V0, b, 0)), la.norm(kd.row3(U, b, 0)))
+        w = max(la.norm(kd.row3(W0, b, 0)), la.norm(kd.row3(Wv, b, 0)))
+        d = v
+        if w > 0.0:
+            d += w * rb[b, RB_RBOUND]
+        out[b] = dt * d
+
+
+# ----------------------------------------------------------------------------- contacts
+
+
+@kernel
+def pair_material(rb, rp, a, b, n, def_eps, def_mu):
+    """(mode, eps, mu) of bodies a < b: the more restrictive mode, the larger eps, the
+    geometric mean of mu (a value one body sets is used as it is), a pair entry replacing
+    them (model.response.ResponseModel.pair_values)."""
+    mode = min(int(rb[a, RB_MODE]), int(rb[b, RB_MODE]))
+    ea, eb = rb[a, RB_EPS], rb[b, RB_EPS]
+    if ea != ea:
+        eps = eb
+    elif eb != eb:
+        eps = ea
+    else:
+        eps = max(ea, eb)
+    if eps != eps:
+        eps = def_eps
+    fa, fb = rb[a, RB_MU], rb[b, RB_MU]
+    if fa != fa:
+        mu = fb
+    elif fb != fb:
+        mu = fa
+    else:
+        mu = math.sqrt(fa * fb)
+    if mu != mu:
+        mu = def_mu
+    p = rp.shape[0]
+    if p:
+        key = a * n + b
+        lo, hi = 0, p
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if rp[mid, RP_KEY] < key:
+                lo = mid + 1
+            else:
+                hi = mid
+        if lo < p and rp[lo, RP_KEY] == key:
+            if rp[lo, RP_MODE] >= 0.0:
+                mode = int(rp[lo, RP_MODE])
+            if rp[lo, RP_EPS] == rp[lo, RP_EPS]:
+                eps = rp[lo, RP_EPS]
+            if rp[lo, RP_MU] == rp[lo, RP_MU]:
+                mu = rp[lo, RP_MU]
+    return mode, eps, mu
+
+
+@kernel
+def basis(n):
+    """Two unit tangents completing n to a right-handed basis; a normal in the xy plane
+    (all of 2D) gets t1 in the plane and t2 = +-z, so 2D stays exactly planar."""
+    if n[2] == 0.0:
+        t1 = (-n[1], n[0], 0.0)
+        return t1, la.cross(n, t1)
+    helper = (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 1.0, 0.0)
+    t1 = la.cross(n, helper)
+    length = la.norm(t1)
+    t1 = (t1[0] / length, t1[1] / length, t1[2] / length)
+    return t1, la.cross(n, t1)
+
+
+@kernel(inline="always")
+def put(K, i, c, v):
+    K[i, c] = v[0]
+    K[i, c + 1] = v[1]
+    K[i, c + 2] = v[2]
+
+
+@kernel(inline="always")
+def get(K, i, c):
+    return (K[i, c], K[i, c + 1], K[i, c + 2])
+
+
+@kernel
+def prepare(K, i, C, q, S, inv_m, IW, V0, W0, U, Wv, rb, rp, prm):
+    """Contact row i of K from detection row q of C: basis, arms to the witness points
+    (P -+ depth/2 n: a sphere's arm is its radius even while it penetrates), the arm
+    crosses (a sphere's r x n, round-off only, is dropped so pushing it never turns it),
+    effective masses, material, and the kick's change of the relative velocity."""
+    a, b = int(C[q, kc.C_A]), int(C[q, kc.C_B])
+    n_body = S.shape[0]
+    K[i, K_A] = a
+    K[i, K_B] = b
+    n = (C[q, kc.C_N], C[q, kc.C_N + 1], C[q, kc.C_N + 2])
+    p = (C[q, kc.C_P], C[q, kc.C_P + 1], C[q, kc.C_P + 2])
+    depth = C[q, kc.C_D]
+    t1, t2 = basis(n)
+    half = la.scale(0.5 * depth, n)
+    ra = la.sub(la.add(p, half), kd.row3(S, a, kd.S_POS))
+    rbv = la.sub(la.sub(p, half), kd.row3(S, b, kd.S_POS))
+    rna, rnb = la.cross(ra, n), la.cross(rbv, n)
+    if la.norm(rna) <= 1e-12 * la.norm(ra):
+        rna = (0.0, 0.0, 0.0)
+    if la.norm(rnb) <= 1e-12 * la.norm(rbv):
+        rnb = (0.0, 0.0, 0.0)
+    r1a, r1b = la.cross(ra, t1), la.cross(rbv, t1)
+    r2a, r2b = la.cross(ra, t2), la.cross(rbv, t2)
+    put(K, i, K_N, n)
+    put(K, i, K_T1, t1)
+    put(K, i, K_T2, t2)
+    put(K, i, K_RNA, rna)
+    put(K, i, K_RNB, rnb)
+    put(K, i, K_R1A, r1a)
+    put(K, i, K_R1B, r1b)
+    put(K, i, K_R2A, r2a)
+    put(K, i, K_R2B, r2b)
+    put(K, i, K_RA, ra)
+    put(K, i, K_RB, rbv)
+    put(K, i, K_P, p)
+    Ia, Ib = kd.row9(IW, a, 0), kd.row9(IW, b, 0)
+    wna, wnb = la.matvec(Ia, rna), la.matvec(Ib, rnb)
+    w1a, w1b = la.matvec(Ia, r1a), la.matvec(Ib, r1b)
+    w2a, w2b = la.matvec(Ia, r2a), la.matvec(Ib, r2b)
+    put(K, i, K_WNA, wna)
+    put(K, i, K_WNB, wnb)
+    put(K, i, K_W1A, w1a)
+    put(K, i, K_W1B, w1b)
+    put(K, i, K_W2A, w2a)
+    put(K, i, K_W2B, w2b)
+    K[i, K_IMA] = inv_m[a]
+    K[i, K_IMB] = inv_m[b]
+    m = inv_m[a] + inv_m[b]
+    kn = m + la.dot(rna, wna) + la.dot(rnb, wnb)
+    K[i, K_MN] = 1.0 / kn if kn > 0.0 else 0.0
+    k11 = m + la.dot(r1a, w1a) + la.dot(r1b, w1b)
+    k12 = la.dot(r1a, w2a) + la.dot(r1b, w2b)
+    k22 = m + la.dot(r2a, w2a) + la.dot(r2b, w2b)
+    K[i, K_KT] = k11
+    K[i, K_KT + 1] = k12
+    K[i, K_KT + 2] = k22
+    mean, dif = 0.5 * (k11 + k22), 0.5 * (k11 - k22)
+    top = mean + math.sqrt(dif * dif + k12 * k12)
+    K[i, K_FSTEP] = 1.0 / top if top > 0.0 else 0.0
+    mode, eps, mu = pair_material(rb, rp, a, b, n_body, prm[PR_DEF_EPS], prm[PR_DEF_MU])
+    K[i, K_MODE] = mode
+    K[i, K_EPS] = eps
+    K[i, K_MU] = mu
+    K[i, K_GAP] = -depth
+    K[i, K_DEPTH] = depth
+    for j in range(3):
+        K[i, K_KICK + j] = rel(K, i, j, U, Wv) - rel(K, i, j, V0, W0)
+    for c in range(K_LN, K_SEND + 1):
+        K[i, c] = 0.0
+    for c in range(K_SN, K_LK + 3):
+        K[i, c] = 0.0
+
+
+@kernel(inline="always")
+def rel(K, i, j, V, W):
+    """Relative velocity of contact i along its direction j (0: n, 1: t1, 2: t2):
+    d.(v_B - v_A) + (r_B x d).w_B - (r_A x d).w_A."""
+    a, b = int(K[i, K_A]), int(K[i, K_B])
+    d = get(K, i, K_N + 3 * j)
+    ca = get(K, i, K_RNA + 6 * j)
+    cb = get(K, i, K_RNB + 6 * j)
+    return (d[0] * (V[b, 0] - V[a, 0]) + d[1] * (V[b, 1] - V[a, 1]) + d[2] * (V[b, 2] - V[a, 2])
+            + cb[0] * W[b, 0] + cb[1] * W[b, 1] + cb[2] * W[b, 2]
+            - ca[0] * W[a, 0] - ca[1] * W[a, 1] - ca[2] * W[a, 2])
+
+
+@kernel(inline="always")
+def apply(K, i, j, lam, U, Wv):
+    """An impulse lam along direction j of contact i: +lam d on B, -lam d on A (at their
+    arms), into the velocities U, Wv (n, 3); the impulse sums are made once at the end
+    (`wrench`)."""
+    if lam == 0.0:
+        return
+    a, b = int(K[i, K_A]), int(K[i, K_B])
+    d, wa, wb = K_N + 3 * j, K_WNA + 6 * j, K_WNB + 6 * j
+    sa, sb = lam * K[i, K_IMA], lam * K[i, K_IMB]
+    for c in range(3):
+        U[b, c] += sb * K[i, d + c]
+        Wv[b, c] += lam * K[i, wb + c]
+        U[a, c] -= sa * K[i, d + c]
+        Wv[a, c] -= lam * K[i, wa + c]
+
+
+@kernel(inline="always")
+def rel3(K, i, U, Wv):
+    """Relative velocity of contact i along n, t1, t2 (as `rel`, all three at once)."""
+    a, b = int(K[i, K_A]), int(K[i, K_B])
+    dv = (U[b, 0] - U[a, 0], U[b, 1] - U[a, 1], U[b, 2] - U[a, 2])
+    out0 = out1 = out2 = 0.0
+    for j in range(3):
+        d, ca, cb = K_N + 3 * j, K_RNA + 6 * j, K_RNB + 6 * j
+        v = dv[0] * K[i, d] + dv[1] * K[i, d + 1] + dv[2] * K[i, d + 2] \
+            + K[i, cb] * Wv[b, 0] + K[i, cb + 1] * Wv[b, 1] + K[i, cb + 2] * Wv[b, 2] \
+            - K[i, ca] * Wv[a, 0] - K[i, ca + 1] * Wv[a, 1] - K[i, ca + 2] * Wv[a, 2]
+        if j == 0:
+            out0 = v
+        elif j == 1:
+            out1 = v
+        else:
+            out2 = v
+    return out0, out1, out2
+
+
+@kernel
+def wrench(K, k, DP, DL):
+    """The impulse sums DP, DL (n, 3) (N s, N m s; world) of all contacts' impacts and
+    resting impulses, through the same arm crosses the velocities saw."""
+    for i in range(k):
+        a, b = int(K[i, K_A]), int(K[i, K_B])
+        for j in range(3):
+            lam = K[i, K_LN + j] + K[i, K_IN + j]
+            if lam == 0.0:
+                continue
+            d, ca, cb = K_N + 3 * j, K_RNA + 6 * j, K_RNB + 6 * j
+            for c in range(3):
+                DP[b, c] += lam * K[i, d + c]
+                DP[a, c] -= lam * K[i, d + c]
+                DL[b, c] += lam * K[i, cb + c]
+                DL[a, c] -= lam * K[i, ca + c]
+        for j in range(3):  # impacts with turning locked: no torque
+            lam = K[i, K_LK + j]
+            if lam == 0.0:
+                continue
+            d = K_N + 3 * j
+            for c in range(3):
+                DP[b, c] += lam * K[i, d + c]
+                DP[a, c] -= lam * K[i, d + c]
+
+
+@kernel(inline="always")
+def friction(K, i, lt1, lt2, vt1, vt2, limit):
+    """The next tangent impulse (lt1, lt2) for tangential velocity (vt1, vt2) within the
+    Coulomb disc of radius `limit`: the impulse that stops the sliding (the 2x2 block of
+    K_t) when it lies in the disc, else a projected step along -vt (scalar step 1/lambda_max
+    of K_t), whose fixed points are exactly Coulomb's law: friction opposite to the
+    sliding velocity at its limit, or sticking."""
+    k11, k12, k22 = K[i, K_KT], K[i, K_KT + 1], K[i, K_KT + 2]
+    det = k11 * k22 - k12 * k12
+    if det > 0.0:
+        s1 = lt1 - (k22 * vt1 - k12 * vt2) / det
+        s2 = lt2 - (k11 * vt2 - k12 * vt1) / det
+        if s1 * s1 + s2 * s2 <= limit * limit:
+            return s1, s2
+    h = K[i, K_FSTEP]
+    s1, s2 = lt1 - h * vt1, lt2 - h * vt2
+    norm = math.sqrt(s1 * s1 + s2 * s2)
+    if norm > limit:
+        scale = limit / norm if norm > 0.0 else 0.0
+        return s1 * scale, s2 * scale
+    return s1, s2
+
+
+# ----------------------------------------------------------------------------- impacts
+
+
+@kernel
+def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
+    """The impact of one pair's points c0 .. c1 - 1 at the step's start, if any of them
+    approaches faster than `bounce` and would close within the step: all its approaching
+    points in one Gauss-Seidel solve to convergence, each normal towards -eps v_n (v_n its
+    approach velocity before this impact, at the step's start: the current one less the
+    kick), the slower ones towards -gap/dt (they arrive; gap: the pair's smallest), with Coulomb
+    friction; a plastic impact (eps 0) also aims at -gap/dt: it lands on the surface. Returns whether it acted.
+    lam (>= 3 (c1 - c0),): scratch."""
+    fast = False
+    m = c1 - c0
+    # a pair arrives as a whole: every point may close at most the pair's smallest gap
+    # (points aiming at their own gaps would spin the body to meet them all: a bullet box
+    # spun at 1e4 rad/s and went through a wall)
+    gap = math.inf
+    for q in range(m):
+        gap = min(gap, K[c0 + q, K_GAP])
+    arrive = -max(gap, 0.0) / dt
+    for q in range(m):
+        i = c0 + q
+        lam[3 * q] = -1.0  # not in this impact
+        if int(K[i, K_MODE]) != IMPULSE:
+            continue
+        vn = rel3(K, i, U, Wv)[0] - K[i, K_KICK]
+        if vn < -APPROACH_EPS and K[i, K_GAP] + dt * (vn + K[i, K_KICK]) < 0.0:
+            eps = K[i, K_EPS] if K[i, K_PASSES] < MAX_ELASTIC_PASSES else 0.0
+            # the target: Newton's law; a plastic one lands on the surface (closes the gap
+            # exactly) instead of stopping short of it (as Box2D v3, which skips its
+            # restitution pass for eps = 0); an elastic one turns at the step's start, up
+            # to eps |v_n| dt short of the surface (docs/collision-response.md)
+            if vn < -bounce:
+                fast = True
+                lam[3 * q + 1] = -eps * vn if eps > 0.0 else arrive
+            else:
+                lam[3 * q + 1] = arrive
+            lam[3 * q] = 0.0
+    if not fast:
+        return False
+    a, b = int(K[c0, K_A]), int(K[c0, K_B])
+    saved = np.empty((4, 3))
+    for c in range(3):
+        saved[0, c], saved[1, c] = U[a, c], U[b, c]
+        saved[2, c], saved[3, c] = Wv[a, c], Wv[b, c]
+    tl = np.zeros((m, 3))  # accumulated impulses of this impact: n, t1, t2
+    for _ in range(IMPACT_ITERATIONS):
+        change, size = 0.0, 0.0
+        for q in range(m):
+            if lam[3 * q] < 0.0:
+                continue
+            i = c0 + q
+            vn = rel3(K, i, U, Wv)[0] - K[i, K_KICK]
+            new = max(tl[q, 0] + (lam[3 * q + 1] - vn) * K[i, K_MN], 0.0)
+            d = new - tl[q, 0]
+            tl[q, 0] = new
+            apply(K, i, 0, d, U, Wv)
+            _, vt1, vt2 = rel3(K, i, U, Wv)
+            vt1 -= K[i, K_KICK + 1]
+            vt2 -= K[i, K_KICK + 2]
+            s1, s2 = friction(K, i, tl[q, 1], tl[q, 2], vt1, vt2, K[i, K_MU] * new)
+            d1, d2 = s1 - tl[q, 1], s2 - tl[q, 2]
+            tl[q, 1], tl[q, 2] = s1, s2
+            apply(K, i, 1, d1, U, Wv)
+            apply(K, i, 2, d2, U, Wv)
+            change = max(change, abs(d), abs(d1), abs(d2))
+            size = max(size, new)
+        if change <= IMPACT_CONVERGED * size:
+            break
+    turn = 0.0
+    for c in range(3):
+        turn = max(turn, abs(Wv[a, c] - saved[2, c]), abs(Wv[b, c] - saved[3, c]))
+    if turn * dt > MAX_IMPACT_TURN / math.sqrt(3.0):  # (a component bound of |dw| dt)
+        for c in range(3):
+            U[a, c], U[b, c] = saved[0, c], saved[1, c]
+            Wv[a, c], Wv[b, c] = saved[2, c], saved[3, c]
+        _locked_impact(K, c0, m, lam, tl, U, Wv)
+        return True
+    for q in range(m):
+        if lam[3 * q] < 0.0:
+            continue
+        i = c0 + q
+        K[i, K_IN] += tl[q, 0]
+        K[i, K_IT] += tl[q, 1]
+        K[i, K_IT + 1] += tl[q, 2]
+        K[i, K_PASSES] += 1.0
+    return True
+
+
+@kernel
+def _locked_impact(K, c0, m, lam, tl, U, Wv):
+    """The impact of `impact_pair` with the bodies' turning locked: the impulses change
+    linear velocities only (effective mass 1 / (1/m_a + 1/m_b) along every direction),
+    with the same targets and Coulomb friction; kept in K_LK (no torque in `wrench`).
+    A pure translation meets every point's target: no point approaches too fast, and
+    the kinetic energy does not grow (a central impact of two particles)."""
+    a, b = int(K[c0, K_A]), int(K[c0, K_B])
+    im = K[c0, K_IMA] + K[c0, K_IMB]
+    if im <= 0.0:
+        return
+    for q in range(m):
+        tl[q, 0] = tl[q, 1] = tl[q, 2] = 0.0
+    for _ in range(IMPACT_ITERATIONS):
+        change, size = 0.0, 0.0
+        for q in range(m):
+            if lam[3 * q] < 0.0:
+                continue
+            i = c0 + q
+            vn = rel3(K, i, U, Wv)[0] - K[i, K_KICK]
+            new = max(tl[q, 0] + (lam[3 * q + 1] - vn) / im, 0.0)
+            d0 = new - tl[q, 0]
+            tl[q, 0] = new
+            _linear(K, i, 0, d0, U)
+            _, vt1, vt2 = rel3(K, i, U, Wv)
+            s1 = tl[q, 1] - (vt1 - K[i, K_KICK + 1]) / im
+            s2 = tl[q, 2] - (vt2 - K[i, K_KICK + 2]) / im
+            limit = K[i, K_MU] * new
+            norm = math.sqrt(s1 * s1 + s2 * s2)
+            if norm > limit:
+                scale = limit / norm if norm > 0.0 else 0.0
+                s1, s2 = s1 * scale, s2 * scale
+            d1, d2 = s1 - tl[q, 1], s2 - tl[q, 2]
+            tl[q, 1], tl[q, 2] = s1, s2
+            _linear(K, i, 1, d1, U)
+            _linear(K, i, 2, d2, U)
+            change = max(change, abs(d0), abs(d1), abs(d2))
+            size = max(size, new)
+        if change <= IMPACT_CONVERGED * size:
+            break
+    for q in range(m):
+        if lam[3 * q] < 0.0:
+            continue
+        i = c0 + q
+        for j in range(3):
+            K[i, K_LK + j] += tl[q, j]
+        K[i, K_PASSES] += 1.0
+
+
+@kernel(inline="always")
+def _linear(K, i, j, lam, U):
+    """An impulse lam along direction j of contact i on the linear velocities only."""
+    if lam == 0.0:
+        return
+    a, b = int(K[i, K_A]), int(K[i, K_B])
+    d = K_N + 3 * j
+    for c in range(3):
+        U[b, c] += lam * K[i, K_IMB] * K[i, d + c]
+        U[a, c] -= lam * K[i, K_IMA] * K[i, d + c]
+
+
+@kernel
+def impacts(K, starts, npairs, first_pair, dt, bounce, U, Wv, changed):
+    """The impact phase over the pairs from `first_pair` on (starts (npairs + 1,): the
+    first contact of each pair): sweeps in pair order, each pair visited while one of its
+    bodies changed in the last sweep, until no pair acts (or MAX_IMPACT_SWEEPS).
+    changed (n,) int64: scratch."""
+    for b in range(changed.shape[0]):
+        changed[b] = -2
+    lam = np.empty(3 * kc.MAX_PER_PAIR * 2)
+    for sweep in range(MAX_IMPACT_SWEEPS):
+        acted = False
+        for p in range(first_pair, npairs):
+            c0, c1 = starts[p], starts[p + 1]
+            a, b = int(K[c0, K_A]), int(K[c0, K_B])
+            if sweep > 0 and changed[a] < sweep - 1 and changed[b] < sweep - 1:
+                continue
+            if c1 - c0 > kc.MAX_PER_PAIR * 2:
+                continue
+            if impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
+                changed[a] = sweep
+                changed[b] = sweep
+                acted = True
+        if not acted:
+            break
+
+
+# ----------------------------------------------------------------------------- rest
+
+
+@kernel
+def warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv):
+    """Start the resting impulses from last step's (the same pair and rank within the
+    pair; rows of impacts, toi = 0, are not used): the world impulse projected on this
+    contact's basis, the normal >= 0, friction in its disc."""
+    np_ = prev_a.shape[0]
+    if np_ == 0 or k == 0:
+        return
+    j = 0
+    i = 0
+    while i < k:
+        a, b = int(K[i, K_A]), int(K[i, K_B])
+        i_end = i
+        while i_end < k and int(K[i_end, K_A]) == a and int(K[i_end, K_B]) == b:
+            i_end += 1
+        while j < np_ and (prev_a[j] < a or (prev_a[j] == a and prev_b[j] < b)):
+            j += 1
+        j_end = j
+        while j_end < np_ and prev_a[j_end] == a and prev_b[j_end] == b:
+            j_end += 1
+        for q in range(min(i_end - i, j_end - j)):
+            row, old = i + q, j + q
+            if prev_toi[old] == prev_toi[old] or int(K[row, K_MODE]) != IMPULSE:
+                continue
+            P = (prev_imp[old, 0], prev_imp[old, 1], prev_imp[old, 2])
+            ln = max(la.dot(P, get(K, row, K_N)), 0.0)
+            l1, l2 = la.dot(P, get(K, row, K_T1)), la.dot(P, get(K, row, K_T2))
+            limit = K[row, K_MU] * ln
+            norm = math.sqrt(l1 * l1 + l2 * l2)
+            if norm > limit:
+                s = limit / norm if norm > 0.0 else 0.0
+                l1, l2 = l1 * s, l2 * s
+            K[row, K_LN], K[row, K_LT], K[row, K_LT + 1] = ln, l1, l2
+            apply(K, row, 0, ln, U, Wv)
+            apply(K, row, 1, l1, U, Wv)
+            apply(K, row, 2, l2, U, Wv)
+        i = i_end
+        j = j_end
+
+
+@kernel
+def rest(K, k, dt, iterations, U, Wv):
+    """Sequential impulses on the kicked velocities: per contact the normal towards
+    v_n >= -max(gap, 0)/dt (a gap may close exactly within the step; a penetration is left
+    to the position pass, no velocity is added for it), clamped >= 0, then friction in
+    the Coulomb disc of the normal impulse."""
+    for _ in range(iterations):
+        for i in range(k):
+            if int(K[i, K_MODE]) != IMPULSE:
+                continue
+            target = -max(K[i, K_GAP], 0.0) / dt
+            vn = rel3(K, i, U, Wv)[0]
+            new = max(K[i, K_LN] + (target - vn) * K[i, K_MN], 0.0)
+            apply(K, i, 0, new - K[i, K_LN], U, Wv)
+            K[i, K_LN] = new
+            _, vt1, vt2 = rel3(K, i, U, Wv)
+            s1, s2 = friction(K, i, K[i, K_LT], K[i, K_LT + 1], vt1, vt2, K[i, K_MU] * new)
+            apply(K, i, 1, s1 - K[i, K_LT], U, Wv)
+            apply(K, i, 2, s2 - K[i, K_LT + 1], U, Wv)
+            K[i, K_LT], K[i, K_LT + 1] = s1, s2
+
+
+@kernel
+def slide(K, k, dt, inv_m, U, DP):
+    """`response: slide` contacts that would close within the step: the slide's
+    v <- v - (v.n) n for each movable body moving into the other (linear velocity only,
+    no mass weighting, no friction)."""
+    for i in range(k):
+        if int(K[i, K_MODE]) != SLIDE:
+            continue
+        if K[i, K_GAP] + dt * rel_linear(K, i, U) >= 0.0:
+            continue
+        n = get(K, i, K_N)
+        for body, sign in ((int(K[i, K_B]), -1.0), (int(K[i, K_A]), 1.0)):
+            vn = la.dot(kd.row3(U, body, 0), n)
+            if inv_m[body] > 0.0 and sign * vn > 0.0:
+                for c in range(3):
+                    U[body, c] -= vn * n[c]
+                    DP[body, c] -= vn * n[c] / inv_m[body]
+
+
+@kernel(inline="always")
+def rel_linear(K, i, U):
+    a, b = int(K[i, K_A]), int(K[i, K_B])
+    n = get(K, i, K_N)
+    return la.dot(la.sub(kd.row3(U, b, 0), kd.row3(U, a, 0)), n)
+
+
+# ----------------------------------------------------------------------------- shock
+
+
+SHOCK_ITERATIONS = 16  # Gauss-Seidel sweeps per level of the shock pass
+STICK_MARGIN = 1.0 - 1e-9  # friction below this share of its limit: the contact sticks
+
+
+@kernel
+def contact_levels(K, k, inv_m, tol, level):
+    """level (n,) int64: each body's distance in touching contacts (gap <= tol, a mode
+    that pushes) from a body that does not move (level 0); n + 1 when it touches none
+    (a cluster in the air). Bellman-Ford over the contacts."""
+    n = level.shape[0]
+    for b in range(n):
+        level[b] = 0 if inv_m[b] == 0.0 else n + 1
+    changed = True
+    while changed:
+        changed = False
+        for i in range(k):
+            mode = int(K[i, K_MODE])
+            if (mode != IMPULSE and mode != SLIDE) or K[i, K_GAP] > tol:
+                continue
+            a, b = int(K[i, K_A]), int(K[i, K_B])
+            if level[a] + 1 < level[b]:
+                level[b] = level[a] + 1
+                changed = True
+            if level[b] + 1 < level[a]:
+                level[a] = level[b] + 1
+                changed = True
+
+
+@kernel
+def level_order(K, k, level, between):
+    """Rows of K ordered by the lower level of their two bodies, ground up (a counting
+    sort, stable); `between`: only contacts whose bodies' levels differ. Returns
+    (order, m)."""
+    n = level.shape[0]
+    count = np.zeros(n + 3, np.int64)
+    for i in range(k):
+        la, lb = level[int(K[i, K_A])], level[int(K[i, K_B])]
+        if between and la == lb:
+            continue
+        count[min(la, lb) + 1] += 1
+    for c in range(1, n + 3):
+        count[c] += count[c - 1]
+    order = np.empty(k, np.int64)
+    m = 0
+    for i in range(k):
+        la, lb = level[int(K[i, K_A])], level[int(K[i, K_B])]
+        if between and la == lb:
+            continue
+        lv = min(la, lb)
+        order[count[lv]] = i
+        count[lv] += 1
+        m += 1
+    return order, m
+
+
+@kernel(inline="always")
+def _upper_mass(K, i, j, upper_b, im):
+    """1 / effective mass along direction j of contact i for its upper body alone."""
+    arm = (K_RNB if upper_b else K_RNA) + 6 * j
+    wv = (K_WNB if upper_b else K_WNA) + 6 * j
+    return im + K[i, arm] * K[i, wv] + K[i, arm + 1] * K[i, wv + 1] + \
+        K[i, arm + 2] * K[i, wv + 2]
+
+
+@kernel(inline="always")
+def _shock_apply(K, i, j, upper_b, u, sgn, im, dl, U, Wv, DP, DL):
+    """An impulse dl along direction j of contact i on its upper body u only."""
+    if dl == 0.0:
+        return
+    d = K_N + 3 * j
+    arm = (K_RNB if upper_b else K_RNA) + 6 * j
+    wv = (K_WNB if upper_b else K_WNA) + 6 * j
+    for c in range(3):
+        U[u, c] += sgn * dl * im * K[i, d + c]
+        Wv[u, c] += sgn * dl * K[i, wv + c]
+        DP[u, c] += sgn * dl * K[i, d + c]
+        DL[u, c] += sgn * dl * K[i, arm + c]
+
+
+@kernel
+def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL):
+    """Shock propagation (Guendelman, Bridson & Fedkiw 2003) on velocities, after the
+    rest iterations: level by level from the ground up, each contact between two levels
+    solved with its lower body frozen (infinite mass: the impulse acts on the upper body
+    only), normal towards v_n >= -max(gap, 0)/dt (v_n = that for a contact that carries
+    resting load: it may pull back what the rest pushed) and friction in the Coulomb disc of all
+    the contact's normal impulse. The iterations' leftover error then cannot make a
+    stack sink, whatever the mass ratio (a 100 kg box on a 1 kg slab). `order` (m,): the
+    contacts between levels, ground up (`level_order`)."""
+    q0 = 0
+    while q0 < m:
+        i0 = order[q0]
+        lv = min(level[int(K[i0, K_A])], level[int(K[i0, K_B])])
+        q1 = q0
+        while q1 < m and min(level[int(K[order[q1], K_A])],
+                             level[int(K[order[q1], K_B])]) == lv:
+            q1 += 1
+        for _ in range(iterations):
+            for q in range(q0, q1):
+                i = order[q]
+                mode = int(K[i, K_MODE])
+                if mode != IMPULSE:
+                    continue
+                a, b = int(K[i, K_A]), int(K[i, K_B])
+                upper_b = level[b] > level[a]
+                u = b if upper_b else a
+                sgn = 1.0 if upper_b else -1.0
+                im = K[i, K_IMB] if upper_b else K[i, K_IMA]
+                if im == 0.0:
+                    continue
+                # friction only where the rest found the contact sticking (its friction
+                # inside the cone): against a frozen lower body, friction at a sliding
+                # or rolling contact spun a pile's spheres up
+                lt1 = K[i, K_LT] + K[i, K_IT]
+                lt2 = K[i, K_LT + 1] + K[i, K_IT + 1]
+                sticks = K[i, K_LN] > 0.0 and math.sqrt(lt1 * lt1 + lt2 * lt2) < \
+                    STICK_MARGIN * K[i, K_MU] * (K[i, K_LN] + K[i, K_IN])
+                for j in range(3 if sticks else 1):
+                    mass = _upper_mass(K, i, j, upper_b, im)
+                    if mass <= 0.0:
+                        continue
+                    v = rel(K, i, j, U, Wv)
+                    old = K[i, K_SN + j]
+                    if j == 0:
+                        # a contact that carries load (the rest gave it an impulse) may
+                        # also be held from separating, down to no resting impulse at
+                        # all: a stack that rocks is held as well as one that sinks (an
+                        # impact's impulse stays: a bounce is not pulled back)
+                        floor = -K[i, K_LN]
+                        new = max(old + (-max(K[i, K_GAP], 0.0) / dt - v) / mass,
+                                  min(floor, 0.0))
+                    else:
+                        new = old - v / mass
+                        if j == 2:  # both tangents: the whole friction in the disc
+                            limit = K[i, K_MU] * (K[i, K_LN] + K[i, K_IN] + K[i, K_SN])
+                            t1 = K[i, K_LT] + K[i, K_IT] + K[i, K_SN + 1]
+                            t2 = K[i, K_LT + 1] + K[i, K_IT + 1] + new
+                            norm = math.sqrt(t1 * t1 + t2 * t2)
+                            if norm > limit:
+                                scale = limit / norm
+                                _shock_apply(K, i, 1, upper_b, u, sgn, im,
+                                             t1 * scale - t1, U, Wv, DP, DL)
+                                K[i, K_SN + 1] += t1 * scale - t1
+                                new = t2 * scale - (K[i, K_LT + 1] + K[i, K_IT + 1])
+                    _shock_apply(K, i, j, upper_b, u, sgn, im, new - old, U, Wv, DP, DL)
+                    K[i, K_SN + j] = new
+        q0 = q1
+
+
+# ----------------------------------------------------------------------------- positions
+
+
+@kernel
+def end_separations(mf, K, k, S, RS, S1, RS1):
+    """K_SEND: each contact's separation after the step, its witness points carried with
+    their bodies (rotated by R1 R0^T), measured along its normal."""
+    for i in range(k):
+        a, b = int(K[i, K_A]), int(K[i, K_B])
+        n = get(K, i, K_N)
+        da = moved(mf, a, get(K, i, K_RA), S, RS, S1, RS1)
+        db = moved(mf, b, get(K, i, K_RB), S, RS, S1, RS1)
+        K[i, K_SEND] = K[i, K_GAP] + la.dot(la.sub(db, da), n)
+
+
+@kernel(inline="always")
+def moved(mf, b, r, S, RS, S1, RS1):
+    """Displacement over the step of the point at arm r from body b's centre."""
+    d = la.sub(kd.row3(S1, b, kd.S_POS), kd.row3(S, b, kd.S_POS))
+    slot = kd.slot_of(mf, b)
+    if slot >= 0:
+        R0, R1 = kd.row9(RS, slot, kd.RS_R), kd.row9(RS1, slot, kd.RS_R)
+        d = la.add(d, la.sub(la.matvec(R1, la.mattvec(R0, r)), r))
+    return d
+
+
+@kernel
+def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, dth):
+    """The position pass: pseudo-impulses Q >= 0 along the normals (Gauss-Seidel on the
+    linearised separations, the contacts ground up in `order` (k,), and with shock
+    propagation: a contact between two `level`s moves its upper body only) until every
+    contact that ends deeper than `slop` is back at -slop; then the bodies are moved by dx and turned by exp(dth), their angular momentum
+    turned with them (body-frame L kept, so the kinetic energy is unchanged), and no
+    velocity changes. dx, dth (n, 3): scratch."""
+    n = S1.shape[0]
+    for b in range(n):
+        for c in range(3):
+            dx[b, c] = 0.0
+            dth[b, c] = 0.0
+    any_deep = False
+    for i in range(k):
+        K[i, K_Q] = 0.0
+        mode = int(K[i, K_MODE])
+        if (mode == IMPULSE or mode == SLIDE) and K[i, K_SEND] < -slop:
+            any_deep = True
+    if not any_deep:
+        return
+    for _ in range(iterations):
+        for o in range(k):
+            i = order[o]
+            mode = int(K[i, K_MODE])
+            if mode != IMPULSE and mode != SLIDE:
+                continue
+            a, b = int(K[i, K_A]), int(K[i, K_B])
+            nrm = get(K, i, K_N)
+            sep = K[i, K_SEND] + la.dot(la.sub(kd.row3(dx, b, 0), kd.row3(dx, a, 0)), nrm) \
+                + la.dot(get(K, i, K_RNB), kd.row3(dth, b, 0)) \
+                - la.dot(get(K, i, K_RNA), kd.row3(dth, a, 0))
+            ima, imb = inv_m[a], inv_m[b]
+            inv_k = K[i, K_MN]
+            if level[a] != level[b]:  # shock propagation: the lower body stays
+                upper_b = level[b] > level[a]
+                if upper_b:
+                    ima = 0.0
+                else:
+                    imb = 0.0
+                mass = _upper_mass(K, i, 0, upper_b, imb if upper_b else ima)
+                inv_k = 1.0 / mass if mass > 0.0 else 0.0
+            new = max(K[i, K_Q] - (sep + slop) * inv_k, 0.0)
+            q = new - K[i, K_Q]
+            if q == 0.0:
+                continue
+            K[i, K_Q] = new
+            if imb != 0.0:
+                wb = la.matvec(kd.row9(IW, b, 0), la.scale(q, get(K, i, K_RNB)))
+                for c in range(3):
+                    dx[b, c] += imb * q * nrm[c]
+                    dth[b, c] += wb[c]
+            if ima != 0.0:
+                wa = la.matvec(kd.row9(IW, a, 0), la.scale(q, get(K, i, K_RNA)))
+                for c in range(3):
+                    dx[a, c] -= ima * q * nrm[c]
+                    dth[a, c] -= wa[c]
+    for b in range(n):
+        for c in range(3):
+            S1[b, kd.S_POS + c] += dx[b, c]
+    for kk in range(RS1.shape[0]):
+        i = kd.at(mf, kd.H_ROT, kk, kd.RT_SIZE)
+        b = int(mf[i + kd.RT_INDEX])
+        th = kd.row3(dth, b, 0)
+        if th[0] == 0.0 and th[1] == 0.0 and th[2] == 0.0:
+            continue
+        E = la.exp_so3(th)
+        R = la.matmul(E, kd.row9(RS1, kk, kd.RS_R))
+        L = la.matvec(E, kd.row3(RS1, kk, kd.RS_L))
+        kd.put9(RS1, kk, kd.RS_R, R)
+        kd.put3(RS1, kk, kd.RS_L, L)
+        kd.put4(S1, b, kd.S_QUAT, la.quat_from_matrix(R))
+        kd.put3(S1, b, kd.S_ANGVEL, kd.world_omega(mf, kk, R, L))
+
+
+# ----------------------------------------------------------------------------- pairs
+
+
+@kernel
+def pair_starts(K, k, first, starts):
+    """starts[p]: the first row of each pair (rows sorted or appended by pair) from row
+    `first` on; returns the number of pairs. starts (>= k + 1,)."""
+    np_ = 0
+    for i in range(first, k):
+        if i == first or K[i, K_A] != K[i - 1, K_A] or K[i, K_B] != K[i - 1, K_B]:
+            starts[np_] = i
+            np_ += 1
+    starts[np_] = k
+    return np_
+
+
+@kernel
+def has_pair(K, k0, k, a, b):
+    """Whether K holds a contact of bodies (a, b): rows [0, k0) are sorted by pair
+    (binary search), rows [k0, k) were appended (scanned)."""
+    key = a * (1 << 31) + b
+    lo, hi = 0, k0
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if int(K[mid, K_A]) * (1 << 31) + int(K[mid, K_B]) < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < k0 and int(K[lo, K_A]) == a and int(K[lo, K_B]) == b:
+        return True
+    for i in range(k0, k):
+        if int(K[i, K_A]) == a and int(K[i, K_B]) == b:
+            return True
+    return False
+
+
+@kernel
+def expand_pairs(gf, lo, hi, step, grown, K, k0, k):
+    """Candidate geom pairs of the bodies whose sweep grew (grown (n,) bool) against all
+    geoms in the scene at `step`, whose boxes overlap and whose bodies have no contact in
+    K yet. Returns (P, m)."""
+    n_geom = gf.shape[0]
+    P = np.empty((16, 2), np.int64)
+    m = np.int64(0)
+    for i in range(n_geom):
+        if gf[i, kc.G_EMIT] > step or not grown[int(gf[i, kc.G_BODY])]:
+            continue
+        for j in range(n_geom):
+            if j == i or gf[j, kc.G_EMIT] > step:
+                continue
+            if grown[int(gf[j, kc.G_BODY])] and j < i:
+                continue  # both grew: once
+            if not (kc._overlap(lo, hi, i, j) and kc._wanted(gf, i, j)):
+                continue
+            ba, bb = int(gf[i, kc.G_BODY]), int(gf[j, kc.G_BODY])
+            if has_pair(K, k0, k, min(ba, bb), max(ba, bb)):
+                continue
+            P = kc._push_pair(P, m, i, j)
+            m += 1
+    return P, m
+
+
+# output rows
+O_A, O_B, O_P, O_N, O_D, O_TOI, O_IMP, O_SIZE = 0, 1, 2, 5, 8, 9, 10, 13
+
+
+@kernel
+def outputs(K, k, tol):
+    """The contacts to report, OUT (k', O_SIZE): the pairs that have a point within the
+    tolerance or an impulse (speculative contacts far apart are not contacts), with the
+    impulse on B (world, N s: impact + rest) and toi = 0 for contacts that took an
+    impact at the step's start (NaN otherwise: the next step warm-starts from those)."""
+    OUT = np.empty((k, O_SIZE))
+    m = 0
+    i = 0
+    while i < k:
+        j = i
+        keep = False
+        while j < k and K[j, K_A] == K[i, K_A] and K[j, K_B] == K[i, K_B]:
+            if K[j, K_DEPTH] >= -tol or K[j, K_LN] != 0.0 or K[j, K_IN] != 0.0 or \
+                    K[j, K_LK] != 0.0 or \
+                    K[j, K_LT] != 0.0 or K[j, K_LT + 1] != 0.0 or K[j, K_IT] != 0.0 or \
+                    K[j, K_IT + 1] != 0.0:
+                keep = True
+            j += 1
+        if keep:
+            for q in range(i, j):
+                OUT[m, O_A] = K[q, K_A]
+                OUT[m, O_B] = K[q, K_B]
+                for c in range(3):
+                    OUT[m, O_P + c] = K[q, K_P + c]
+                    OUT[m, O_N + c] = K[q, K_N + c]
+                OUT[m, O_D] = K[q, K_DEPTH]
+                impact = K[q, K_IN] != 0.0 or K[q, K_IT] != 0.0 or \
+                    K[q, K_IT + 1] != 0.0 or K[q, K_LK] != 0.0
+                OUT[m, O_TOI] = 0.0 if impact else math.nan
+                # (shock impulses, K_SN, act on one body: not part of the pair's impulse,
+                # and warm starting from them made a 10-box stack rock)
+                ln = K[q, K_LN] + K[q, K_IN] + K[q, K_LK]
+                l1 = K[q, K_LT] + K[q, K_IT] + K[q, K_LK + 1]
+                l2 = K[q, K_LT + 1] + K[q, K_IT + 1] + K[q, K_LK + 2]
+                for c in range(3):
+                    OUT[m, O_IMP + c] = ln * K[q, K_N + c] + l1 * K[q, K_T1 + c] + \
+                        l2 * K[q, K_T2 + c]
+                m += 1
+        i = j
+    return OUT, m
+
+
+@kernel
+def find_stops(C, k, dt, rb, rp, prm, n, inv_m, U, stopped):
+    """`response: stop`: a movable body of a contact that penetrates or would close
+    within the step stops (stopped (n,) bool)."""
+    any_stop = False
+    for q in range(k):
+        a, b = int(C[q, kc.C_A]), int(C[q, kc.C_B])
+        mode, _, _ = pair_material(rb, rp, a, b, n, prm[PR_DEF_EPS], prm[PR_DEF_MU])
+        if mode != STOP:
+            continue
+        nrm = (C[q, kc.C_N], C[q, kc.C_N + 1], C[q, kc.C_N + 2])
+        vn = la.dot(la.sub(kd.row3(U, b, 0), kd.row3(U, a, 0)), nrm)
+        if C[q, kc.C_D] > 0.0 or -C[q, kc.C_D] + dt * vn < 0.0:
+            for body in (a, b):
+                if inv_m[body] > 0.0:
+                    stopped[body] = True
+                    any_stop = True
+    return any_stop
+
+
+# ----------------------------------------------------------------------------- the entry
+#
+# One compiled entry per integrator and set of shape pairs, made on first use (as
+# kernels.dynamics.entry): the integrator and the pair kinds the scene can have are
+# constants of the closure, so numba compiles, caches and loads only what a scene uses.
+
+PAIR_KINDS = ("sphere-sphere", "plane-sphere", "box-sphere", "capsule-sphere",
+              "cylinder-sphere", "plane-box", "plane-cylinder", "plane-capsule",
+              "capsule-capsule", "box-capsule", "box-box")
+_ENTRIES: dict = {}
+
+
+def entry(integ: int, kinds: tuple):
+    """The stepped-step kernel of integrator `integ` (kernels.dynamics codes) for the
+    pair kinds `kinds` (a bool per PAIR_KINDS)."""
+    key = (integ, tuple(bool(x) for x in kinds))
+    if key not in _ENTRIES:
+        _ENTRIES[key] = _make_entry(*key)
+    return _ENTRIES[key]
+
+
+def _make_entry(integ: int, kinds: tuple):
+    body_frame = integ == kd.RK4 or integ == kd.DOPRI5
+    SS, PS, BS, CS, YS, PB, PY, PC, CC, BC, BB = kinds
+
+    @kernel
+    def step_kernel(mf, gf, rb, rp, prm, S, RS, prev_a, prev_b, prev_toi, prev_imp, XC,
+                    KIN, KIN_RS, S1, RS1, wb, wr, wm, kS):
+        """One stepped step from (S, RS) into (S1, RS1) (module docstring). XC (x, C_SIZE):
+        contacts of the pairs Python detects (meshes, hulls), at S. KIN, KIN_RS: the end
+        states of kinematic bodies (the scene graph's), used when KIN has rows. Returns
+        (OUT, k, h_prop): the contacts (outputs) and dopri5's step proposal."""
+        n, r, ng = S.shape[0], RS.shape[0], gf.shape[0]
+        dt, tol = prm[PR_DT], prm[PR_TOL]
+        step = int(prm[PR_STEP])
+        t = prm[PR_T]
+        planar = prm[PR_PLANAR] != 0.0
+        inv_m = np.empty(n)
+        IW = np.empty((n, 9))
+        body_tables(mf, step, S, RS, inv_m, IW)
+        acc, M, Wr = wb[kd.WB_ACC], wr[kd.WR_M], wr[kd.WR_W]
+        ext = np.zeros((n, 6))
+        V0, W0 = np.empty((n, 3)), np.empty((n, 3))
+        U, Wv = np.empty((n, 3)), np.empty((n, 3))
+        kick(mf, step, t, dt, S, RS, inv_m, IW, acc, M, Wr, ext, V0, W0, U, Wv)
+        sw = np.empty(n)
+        sweeps(dt, V0, W0, U, Wv, rb, sw)
+        need = np.empty(n)
+        grown = np.zeros(n, np.bool_)
+        stopped = np.zeros(n, np.bool_)
+        W = np.empty((ng, kc.W_SIZE))
+        kc.place(gf, S, W)
+        pad = np.empty(ng)
+        lo, hi = np.empty((ng, 3)), np.empty((ng, 3))
+        DP, DL = np.zeros((n, 3)), np.zeros((n, 3))
+        K = np.zeros((16, K_SIZE))
+        k = np.int64(0)
+        k0 = np.int64(0)
+        changed = np.empty(n, np.int64)
+        bounce = prm[PR_BOUNCE]
+        rnd = 0
+        rested = False
+        while True:
+            if rnd > 0:  # bodies knocked faster than their sweep: find their new pairs
+                sweeps(dt, V0, W0, U, Wv, rb, need)
+                more = False
+                for b in range(n):
+                    grown[b] = need[b] > sw[b]
+                    if grown[b]:
+                        sw[b] = SWEEP_GROWTH * need[b]
+                        more = True
+                if not more or rnd > 2 * MAX_ROUNDS:
+                    if rested:
+                        break
+                    rest(K, k, dt, int(prm[PR_ITER]), U, Wv)  # all pairs known: rest
+                    rested = True
+                    continue
+            for g in range(ng):
+                pad[g] = sw[int(gf[g, kc.G_BODY])] + 0.5 * tol
+            kc.aabbs(gf, S, W, pad, lo, hi)
+            if rnd == 0:
+                P, m = kc.broad_phase(gf, lo, hi, step)
+            else:
+                P, m = expand_pairs(gf, lo, hi, step, grown, K, k0, k)
+            C = np.empty((max(16, 2 * m + XC.shape[0]), kc.C_SIZE))
+            kn = np.int64(0)
+            for p in range(m):  # the narrow phase, pruned to the scene's pair kinds
+                g1, g2 = P[p, 0], P[p, 1]
+                if gf[g1, kc.G_PYTHON] != 0.0 or gf[g2, kc.G_PYTHON] != 0.0:
+                    continue  # Python's (XC)
+                first = kc._first(int(gf[g1, kc.G_TYPE]), int(gf[g2, kc.G_TYPE]))
+                if first < 0:
+                    continue
+                ga, gb = (g1, g2) if first == 0 else (g2, g1)
+                ta, tb = int(gf[ga, kc.G_TYPE]), int(gf[gb, kc.G_TYPE])
+                ba, bb = int(gf[ga, kc.G_BODY]), int(gf[gb, kc.G_BODY])
+                margin = sw[ba] + sw[bb] + tol
+                C = kc._grow(C, kn, kc.MAX_PER_PAIR)
+                got = 0
+                if ta == kc.SPHERE:
+                    if SS:
+                        got = kc.sphere_sphere(gf, W, ga, gb, margin, C, kn)
+                elif ta == kc.PLANE:
+                    if tb == kc.SPHERE:
+                        if PS:
+                            got = kc.plane_sphere(gf, W, ga, gb, margin, C, kn)
+                    elif tb == kc.BOX:
+                        if PB:
+                            got = kc.plane_box(gf, W, ga, gb, margin, C, kn)
+                    elif tb == kc.CAPSULE:
+                        if PC:
+                            got = kc.plane_capsule(gf, W, ga, gb, margin, C, kn)
+                    elif PY:
+                        got = kc.plane_cylinder(gf, W, ga, gb, margin, C, kn)
+                elif ta == kc.BOX:
+                    if tb == kc.SPHERE:
+                        if BS:
+                            got = kc.box_sphere(gf, W, ga, gb, margin, C, kn)
+                    elif tb == kc.CAPSULE:
+                        if BC:
+                            got = kc.box_capsule(gf, W, ga, gb, margin, C, kn)
+                    elif BB:
+                        got = kc.box_box(gf, W, ga, gb, margin, C, kn)
+                elif ta == kc.CAPSULE:
+                    if tb == kc.SPHERE:
+                        if CS:
+                            got = kc.capsule_sphere(gf, W, ga, gb, margin, C, kn)
+                    elif CC:
+                        got = kc.capsule_capsule(gf, W, ga, gb, margin, C, kn)
+                elif YS:
+                    got = kc.cylinder_sphere(gf, W, ga, gb, margin, C, kn)
+                for q in range(kn, kn + got):
+                    C[q, kc.C_A] = min(ba, bb)
+                    C[q, kc.C_B] = max(ba, bb)
+                    if ba > bb:
+                        for c in range(3):
+                            C[q, kc.C_N + c] = -C[q, kc.C_N + c]
+                kn += got
+            if rnd == 0:
+                C = kc._grow(C, kn, XC.shape[0])
+                for q in range(XC.shape[0]):
+                    for c in range(kc.C_SIZE):
+                        C[kn, c] = XC[q, c]
+                    kn += 1
+                if kn > 1:
+                    C = kc.sort_by_pair(C, kn)
+            if planar:
+                kn = kc.make_planar(C, kn)
+            if rnd == 0 and find_stops(C, kn, dt, rb, rp, prm, n, inv_m, U, stopped):
+                for b in range(n):
+                    if stopped[b]:
+                        inv_m[b] = 0.0
+                        for c in range(9):
+                            IW[b, c] = 0.0
+                        for c in range(3):
+                            U[b, c] = 0.0
+                            Wv[b, c] = 0.0
+                            V0[b, c] = 0.0
+                            W0[b, c] = 0.0
+            K = kc._grow(K, k, kn)
+            for q in range(kn):
+                prepare(K, k + q, C, q, S, inv_m, IW, V0, W0, U, Wv, rb, rp, prm)
+            first_new = k
+            k += kn
+            if rnd == 0:
+                k0 = k
+            starts = np.empty(k - first_new + 1, np.int64)
+            npairs = pair_starts(K, k, first_new, starts)
+            impacts(K, starts, npairs, 0, dt, bounce, U, Wv, changed)
+            if rnd == 0:
+                # after the impacts: they read the start-of-step approach velocities, which
+                # last step's resting impulses must not change (an impulse the rest would
+                # take back again is otherwise bounced on: energy gain in piles)
+                warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv)
+                slide(K, k, dt, inv_m, U, DP)
+            if rested:  # pairs found after the rest: rest again with them
+                rest(K, k, dt, int(prm[PR_ITER]), U, Wv)
+            rnd += 1
+        level = np.empty(n, np.int64)
+        contact_levels(K, k, inv_m, tol, level)
+        order, m_order = level_order(K, k, level, True)
+        shock(K, order, m_order, level, dt, SHOCK_ITERATIONS, U, Wv, DP, DL)
+        wrench(K, k, DP, DL)
+        # the impulses as a constant wrench over the step: the integrator applies them
+        for b in range(n):
+            for c in range(3):
+                ext[b, c] = DP[b, c] / dt
+                ext[b, 3 + c] = DL[b, c] / dt
+        for b in range(n):  # quaternions of bodies that do not turn stay as they are
+            for c in range(kd.S_QUAT, kd.S_QUAT + 4):
+                S1[b, c] = S[b, c]
+        h_prop = prm[PR_H_PROP]
+        ratios = wm[kd.WM_RATIOS:kd.WM_RATIOS + 16]
+        if integ == kd.EULER:
+            kd.step_euler(mf, step, t, dt, S, RS, ext, S1, RS1, wb, wr)
+        elif integ == kd.SYMPLECTIC_EULER:
+            kd.step_symplectic(mf, step, t, dt, S, RS, ext, S1, RS1, wb, wr, ratios)
+        elif integ == kd.VERLET:
+            kd.step_verlet(mf, step, t, dt, S, RS, ext, S1, RS1, wb, wr, ratios)
+        elif integ == kd.RK4:
+            Ss, S0, RSs = np.empty((n, kd.S_SIZE)), np.empty((n, kd.S_SIZE)), \
+                np.empty((r, kd.RS_SIZE))
+            kd.step_rk4(mf, step, t, dt, S, RS, ext, S1, RS1, wb, wr, kS, Ss, S0, RSs)
+        else:
+            Ss, S0, RSs = np.empty((n, kd.S_SIZE)), np.empty((n, kd.S_SIZE)), \
+                np.empty((r, kd.RS_SIZE))
+            h_prop = kd.step_dopri5(mf, step, t, dt, S, RS, ext, S1, RS1, wb, wr, wm, kS,
+                                    Ss, S0, RSs, h_prop)
+            if h_prop < 0.0:
+                return np.empty((0, O_SIZE)), 0, h_prop
+        kd.post_step(mf, body_frame, step, dt, RS, S1, RS1)
+        if integ != kd.SYMPLECTIC_EULER:
+            # a body that took a contact impulse moves with symplectic Euler in this step:
+            # the contact solve's model is x1 = x0 + dt v1 (verlet's or rk4's average
+            # velocity would carry only half of an impulse into the position, and the
+            # position pass then rocked a 10-box stack); free bodies keep the order of the
+            # scene's integrator
+            touched = np.zeros(n, np.bool_)
+            any_touched = False
+            for b in range(n):
+                for c in range(3):
+                    if DP[b, c] != 0.0 or DL[b, c] != 0.0:
+                        touched[b] = True
+                if touched[b]:
+                    any_touched = True
+            if any_touched:
+                Sx, RSx = np.empty_like(S1), np.empty_like(RS1)
+                for b in range(n):
+                    for c in range(kd.S_QUAT, kd.S_QUAT + 4):
+                        Sx[b, c] = S[b, c]
+                kd.step_symplectic(mf, step, t, dt, S, RS, ext, Sx, RSx, wb, wr, ratios)
+                kd.post_step(mf, False, step, dt, RS, Sx, RSx)
+                for b in range(n):
+                    if touched[b] and inv_m[b] != 0.0:
+                        for c in range(kd.S_SIZE):
+                            S1[b, c] = Sx[b, c]
+                        slot = kd.slot_of(mf, b)
+                        if slot >= 0:
+                            for c in range(kd.RS_SIZE):
+                                RS1[slot, c] = RSx[slot, c]
+        if KIN.shape[0]:  # kinematic bodies where the scene graph put them
+            ob = int(mf[kd.H_BODY])
+            for b in range(n):
+                if mf[ob + b * kd.B_SIZE + kd.B_DYNAMIC] == 0.0:
+                    for c in range(kd.S_SIZE):
+                        S1[b, c] = KIN[b, c]
+            for kk in range(r):
+                b = int(mf[kd.at(mf, kd.H_ROT, kk, kd.RT_SIZE) + kd.RT_INDEX])
+                if mf[ob + b * kd.B_SIZE + kd.B_DYNAMIC] == 0.0:
+                    for c in range(kd.RS_SIZE):
+                        RS1[kk, c] = KIN_RS[kk, c]
+        for b in range(n):  # stopped bodies keep their start pose, at rest
+            if stopped[b]:
+                for c in range(3):
+                    S1[b, kd.S_POS + c] = S[b, kd.S_POS + c]
+                    S1[b, kd.S_VEL + c] = 0.0
+                    S1[b, kd.S_ANGVEL + c] = 0.0
+                for c in range(4):
+                    S1[b, kd.S_QUAT + c] = S[b, kd.S_QUAT + c]
+                slot = kd.slot_of(mf, b)
+                if slot >= 0:
+                    for c in range(9):
+                        RS1[slot, kd.RS_R + c] = RS[slot, kd.RS_R + c]
+                    for c in range(3):
+                        RS1[slot, kd.RS_L + c] = 0.0
+        end_separations(mf, K, k, S, RS, S1, RS1)
+        dx, dth = np.empty((n, 3)), np.empty((n, 3))
+        everything, _ = level_order(K, k, level, False)
+        push_out(mf, K, k, everything, level, int(prm[PR_POS_ITER]), prm[PR_SLOP], inv_m,
+                 IW, S1, RS1, dx, dth)
+        if k > k0:  # rows of later rounds were appended: sort them in (K_A, K_B are
+            K = kc.sort_by_pair(K, k)  # columns 0 and 1, as in detection's rows)
+        OUT, m_out = outputs(K, k, tol)
+        return OUT, m_out, h_prop
+
+    return step_kernel

@@ -1,0 +1,224 @@
+"""Loop stage 2.1 + 2.3 with `collision.impacts: stepped`: a whole step of many colliding
+bodies (speculative contacts, impacts, rest, integration, position pass) in one compiled
+call, `kernels.stepped` (docs/collision-response.md, "Stepped impacts").
+
+This module is the thin Python side: it packs the geometry and the materials once per
+model (`tables`), turns a state into kernel rows and back, and asks Python only for the
+pairs the compiled detection has no closed form for (convex hulls, meshes, mesh proxies
+re-fitted every step, cylinders against boxes, capsules or cylinders): those are found
+with `detect`'s numpy broad and narrow phase at the step's start and handed to the kernel.
+
+- `step(model, before, after, dynamics) -> State`: one step from `before`; `after` is only
+  read for the time and, in animated scenes, for where the scene graph put the kinematic
+  bodies. `dynamics` is the dynamics stage (`stages.dynamics.motion`), passed in by the
+  loop so that stages do not import each other: its packed model of the forces and
+  integrators is the kernel's, and its rules for the energy guard and errors apply.
+- `prepare(model, dynamics)`: pack the tables and load (or compile) the kernel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vrsim_cli.maths.products import norm
+from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
+from vrsim_cli.model.model import BODY_DYNAMIC, BODY_STATIC, Model
+from vrsim_cli.model.response import DEFAULT_FRICTION, DEFAULT_RESTITUTION
+from vrsim_cli.model.state import State
+from vrsim_cli.stages.collision.contacts import Contacts
+
+# which closed forms a pair kind needs, as kernels.stepped.PAIR_KINDS
+_KINDS = ((SPHERE, SPHERE), (PLANE, SPHERE), (BOX, SPHERE), (CAPSULE, SPHERE),
+          (CYLINDER, SPHERE), (PLANE, BOX), (PLANE, CYLINDER), (PLANE, CAPSULE),
+          (CAPSULE, CAPSULE), (BOX, CAPSULE), (BOX, BOX))
+
+
+def _kernels():
+    from vrsim_cli.kernels import collide, dynamics, stepped  # numba: stepped scenes only
+
+    return collide, dynamics, stepped
+
+
+def tables(model: Model, dynamics) -> dict:
+    """The kernel's tables of `model`, built once: gf (geometry), rb, rp (materials),
+    the pair kinds it can meet, the geoms Python detects, the kernel."""
+    found = model.cache.get("stepped")
+    if found is not None:
+        return found
+    kc, kd, ks = _kernels()
+
+    cm, rm = model.collision, model.response
+    n = model.n_body
+    gf = np.zeros((cm.n_geom, kc.G_SIZE))
+    gf[:, kc.G_BODY] = cm.geom_body
+    gf[:, kc.G_TYPE] = cm.geom_type
+    gf[:, kc.G_LPOS:kc.G_LPOS + 3] = cm.geom_local_pos
+    gf[:, kc.G_LQUAT:kc.G_LQUAT + 4] = cm.geom_local_quat
+    gf[:, kc.G_TURNED] = np.any(cm.geom_local_quat[:, 1:] != 0.0, axis=1)
+    gf[:, kc.G_RADIUS] = cm.geom_radius
+    gf[:, kc.G_HALF:kc.G_HALF + 3] = cm.geom_half
+    gf[:, kc.G_PN:kc.G_PN + 3] = cm.geom_plane_normal
+    gf[:, kc.G_PO] = cm.geom_plane_offset
+    rbound = np.where(np.isfinite(cm.geom_rbound), cm.geom_rbound, 0.0)
+    gf[:, kc.G_RBOUND] = rbound
+    gf[:, kc.G_EMIT] = model.body_emit_step[cm.geom_body]
+    gf[:, kc.G_MOVES] = np.asarray(model.body_type)[cm.geom_body] != BODY_STATIC
+    kind = cm.geom_type
+    python = (kind == CONVEX) | (kind == MESH) | cm.geom_world_aabb
+    # a cylinder meets a box, a capsule or a cylinder: fcl's (all its pairs then go to
+    # Python, so a body is never split between the two detections)
+    others = set(kind[~python].tolist())
+    if (CYLINDER in others) and (others & {BOX, CAPSULE}) or (kind == CYLINDER).sum() > 1:
+        python |= kind == CYLINDER
+    gf[:, kc.G_PYTHON] = python
+    present = [set(kind[~python].tolist())]
+    counts = {t: int(((kind == t) & ~python).sum()) for t in range(7)}
+    kinds = tuple(a in present[0] and b in present[0] and (a != b or counts[a] > 1)
+                  for a, b in _KINDS)
+    rb = np.zeros((n, ks.RB_SIZE))
+    rb[:, ks.RB_MODE] = rm.body_mode
+    rb[:, ks.RB_EPS] = rm.body_restitution
+    rb[:, ks.RB_MU] = rm.body_friction
+    # how far turning moves a body's surface per rad, from its centre of mass: a sphere's
+    # surface does not move when it turns about its centre (only its offset counts), a
+    # capsule's is its segment's end; the rest their farthest point. (Rolling spheres
+    # otherwise doubled their sweep, and a pile's candidate pairs with it.)
+    offset = np.linalg.norm(cm.geom_local_pos, axis=1)
+    turning = np.where(kind == SPHERE, offset,
+                       np.where(kind == CAPSULE, offset + cm.geom_half[:, 1], rbound))
+    for g in range(cm.n_geom):
+        b = cm.geom_body[g]
+        rb[b, ks.RB_RBOUND] = max(rb[b, ks.RB_RBOUND], turning[g])
+    rp = np.zeros((len(rm.pair_key), ks.RP_SIZE))
+    rp[:, ks.RP_KEY] = rm.pair_key
+    rp[:, ks.RP_MODE] = rm.pair_mode
+    rp[:, ks.RP_EPS] = rm.pair_restitution
+    rp[:, ks.RP_MU] = rm.pair_friction
+    prm = np.zeros(ks.PR_SIZE)
+    prm[ks.PR_DT] = model.dt
+    prm[ks.PR_TOL] = cm.tolerance
+    prm[ks.PR_BOUNCE] = rm.rest_speed
+    prm[ks.PR_ITER] = rm.iterations
+    prm[ks.PR_POS_ITER] = rm.position_iterations
+    prm[ks.PR_SLOP] = rm.slop
+    prm[ks.PR_PLANAR] = model.dimension == 2
+    prm[ks.PR_DEF_EPS] = DEFAULT_RESTITUTION
+    prm[ks.PR_DEF_MU] = DEFAULT_FRICTION
+    integ = kd.INTEGRATOR_CODES[model.integrator]
+    r = 0 if model.rigid is None else model.rigid.n_rot
+    animated = model.animation is not None and model.animation.has_motion
+    found = dict(gf=gf, rb=rb, rp=rp, prm=prm, python=np.flatnonzero(python),
+                 kernel=ks.entry(integ, kinds), mf=dynamics.packed(model),
+                 work=kd.make_work(n, r, integ), S=np.zeros((n, kd.S_SIZE)),
+                 RS=np.zeros((r, kd.RS_SIZE)), S1=np.zeros((n, kd.S_SIZE)),
+                 RS1=np.zeros((r, kd.RS_SIZE)), animated=animated,
+                 no_contacts=(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0),
+                              np.zeros((0, 3))),
+                 no_rows=np.zeros((0, kc.C_SIZE)), no_kin=np.zeros((0, kd.S_SIZE)),
+                 no_kin_rs=np.zeros((0, kd.RS_SIZE)))
+    model.cache["stepped"] = found
+    return found
+
+
+def _rows(model: Model, state: State, into_S, into_RS) -> None:
+    into_S[:, 0:3] = state.body_pos
+    into_S[:, 3:6] = state.body_vel
+    into_S[:, 6:10] = state.body_quat
+    into_S[:, 10:13] = state.body_angvel
+    if into_RS.shape[0]:
+        into_RS[:, 0:9] = np.reshape(state.rot_matrix, (-1, 9))
+        into_RS[:, 9:12] = state.rot_angmom
+
+
+def _python_contacts(model: Model, state: State, tb: dict) -> np.ndarray:
+    """Contact rows (x, C_SIZE) of the pairs with a geom the kernel does not test, at
+    `state`, numpy's detection with a margin of what the bodies can travel in a step
+    (their speed plus gravity's, and their turning; other forces are not counted)."""
+    from vrsim_cli.stages.collision.broadphase import broad_phase
+    from vrsim_cli.stages.collision.contacts import to_contacts
+    from vrsim_cli.stages.collision.narrowphase import narrow_phase
+    from vrsim_cli.stages.collision.shapes import aabbs, place
+
+    kc = _kernels()[0]
+    cm = model.collision
+    dt = model.dt
+    g = norm(model.gravity)
+    moving = np.asarray(model.body_type) == BODY_DYNAMIC
+    reach = dt * (np.linalg.norm(state.body_vel, axis=1) + g * dt * moving) + \
+        dt * np.linalg.norm(state.body_angvel, axis=1) * tb["rb"][:, 3]
+    world = place(cm, state.body_pos, state.body_quat)
+    lo, hi = aabbs(cm, world)
+    pad = reach[cm.geom_body][:, None] + 0.5 * cm.tolerance
+    ia, ib = broad_phase(model, lo - pad, hi + pad, state.step)
+    python = np.zeros(cm.n_geom, bool)
+    python[tb["python"]] = True
+    keep = python[ia] | python[ib]
+    ia, ib = ia[keep], ib[keep]
+    if not len(ia):
+        return tb["no_rows"]
+    margin = float((reach[cm.geom_body[ia]] + reach[cm.geom_body[ib]]).max()) + cm.tolerance
+    c = to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, margin))
+    rows = np.zeros((len(c), kc.C_SIZE))
+    rows[:, kc.C_A] = c.body_a
+    rows[:, kc.C_B] = c.body_b
+    rows[:, kc.C_P:kc.C_P + 3] = c.point
+    rows[:, kc.C_N:kc.C_N + 3] = c.normal
+    rows[:, kc.C_D] = c.depth
+    return rows
+
+
+def step(model: Model, before: State, after: State, dynamics) -> State:
+    """One stepped step from `before` (see the module docstring). Returns the state at
+    after.t with its contacts (those at the step's start within the tolerance or with an
+    impulse; toi 0 for those that took an impact) and their impulses."""
+    _, kd, ks = _kernels()
+    tb = tables(model, dynamics)
+    S, RS, S1, RS1 = tb["S"], tb["RS"], tb["S1"], tb["RS1"]
+    _rows(model, before, S, RS)
+    prm = tb["prm"]
+    prm[ks.PR_STEP] = before.step
+    prm[ks.PR_T] = before.t
+    prm[ks.PR_H_PROP] = before.ode_step
+    c, imp = before.contacts, before.contact_impulse
+    if c is None or imp is None or not len(c):
+        prev = tb["no_contacts"]
+    else:
+        prev = (c.body_a, c.body_b, c.toi, imp)
+    rows = _python_contacts(model, before, tb) if len(tb["python"]) else tb["no_rows"]
+    kin, kin_rs = tb["no_kin"], tb["no_kin_rs"]
+    if tb["animated"]:
+        kin, kin_rs = np.zeros_like(S), np.zeros_like(RS)
+        _rows(model, after, kin, kin_rs)
+    wb, wr, wm, kS = tb["work"]
+    out, m, h_prop = tb["kernel"](tb["mf"], tb["gf"], tb["rb"], tb["rp"], prm, S, RS, *prev,
+                                  rows, kin, kin_rs, S1, RS1, wb, wr, wm, kS)
+    if h_prop < 0.0:
+        from vrsim_cli.errors import SimulationError
+
+        raise SimulationError("the adaptive step size fell below round-off (the motion is "
+                              "not smooth or not finite); try another integrator",
+                              body=dynamics.body_of_component(model, int(-1.0 - h_prop)),
+                              t=float(wm[kd.WM_FAIL_T]))
+    out = out[:m]
+    contacts = Contacts(out[:, ks.O_A].astype(np.int64), out[:, ks.O_B].astype(np.int64),
+                        out[:, ks.O_P:ks.O_P + 3].copy(), out[:, ks.O_N:ks.O_N + 3].copy(),
+                        out[:, ks.O_D].copy(), out[:, ks.O_TOI].copy())
+    changes = {}
+    if RS1.shape[0]:
+        changes = dict(rot_matrix=RS1[:, 0:9].reshape(-1, 3, 3).copy(),
+                       rot_angmom=RS1[:, 9:12].copy())
+    new = after.replace(body_pos=S1[:, 0:3].copy(), body_vel=S1[:, 3:6].copy(),
+                        body_quat=S1[:, 6:10].copy(), body_angvel=S1[:, 10:13].copy(),
+                        ode_step=h_prop, contacts=contacts,
+                        contact_impulse=out[:, ks.O_IMP:ks.O_IMP + 3].copy(), **changes)
+    return dynamics._guard_baseline(model, before, new)  # the dynamics stage's rule
+
+
+def prepare(model: Model, dynamics) -> None:
+    """Pack the tables and load (on the first run after an install: compile) the kernel,
+    with a step of the initial state that is thrown away."""
+    from vrsim_cli.model.state import make_state
+
+    state = make_state(model)
+    after = state.replace(step=state.step + 1, t=model.dt)
+    step(model, state, after, dynamics)
