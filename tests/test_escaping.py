@@ -111,3 +111,32 @@ def test_error_messages_quoting_the_scene_are_escaped(invoke, write_scene, text)
     assert result.exit_code == 2
     printable_lines(result.output)
     assert "\\x1b" in result.output
+
+
+def test_sweep_regress_and_plot_escape_file_and_entity_names(invoke, tmp_path):
+    """Scene file names (sweep, regress) and entity names read from a trajectory (plot)
+    reach the terminal escaped, including in regress's per-entity comparison table."""
+    folder = tmp_path / "scenes"
+    folder.mkdir()
+    scene = folder / "sc\x1b[2Jene.yaml"
+    scene.write_text("vrsim: 1\nduration: 0.1\nbodies: [{name: a, mass: 1}]\n")
+    result = invoke("sweep", scene, "--set", "dt=0.01,0.005", "--jobs", "1",
+                    "-o", tmp_path / "sweep")
+    assert result.exit_code == 0, result.output
+    printable_lines(result.output)
+    assert "\\x1b[2J" in result.output
+    golden = tmp_path / "golden"
+    assert invoke("regress", folder, "--golden", golden, "--update", "--jobs", "1"
+                  ).exit_code == 0
+    scene.write_text("vrsim: 1\nduration: 0.1\nbodies: [{name: a, mass: 1, "
+                     "velocity: [1, 0, 0]}]\n")  # now differs from its golden
+    result = invoke("regress", folder, "--golden", golden, "--jobs", "1")
+    assert result.exit_code == 1, result.output
+    printable_lines(result.output)
+    assert "\\x1b[2J" in result.output
+    pytest.importorskip("matplotlib", reason="vrsim plot needs the plot extra")
+    csv = tmp_path / "t.csv"
+    hostile_csv(csv, ["e" + HOSTILE_CSV])
+    result = invoke("plot", csv, "-o", tmp_path / "p.png")
+    assert result.exit_code == 0, result.output
+    printable_lines(result.output)

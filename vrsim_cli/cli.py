@@ -634,6 +634,12 @@ def _executor_options(command):
                         "(default: the machine's cores; 1: in this process).")(command)
 
 
+def _echo_escaped(text="", **kwargs) -> None:
+    """click.echo with every line escaped (`printable`): sweep, regress and plot print scene
+    file names, entity names and reasons that come from files vrsim did not write."""
+    click.echo("\n".join(printable(line) for line in str(text).split("\n")), **kwargs)
+
+
 @cli.command()
 @click.argument("scene_files", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--set", "settings", multiple=True, metavar="KEY=V1,V2,...", help="Values of "
@@ -665,7 +671,7 @@ def sweep(scene_files, settings, reference, folder, jobs, ray_address, resume, q
     pairs, ref_file = sweep_module.parse_reference(reference)
     plan = sweep_module.plan_sweep(list(scene_files), parsed, pairs, ref_file)
     for note in plan.notes:
-        click.echo(f"note: {note}", err=True)
+        _echo_escaped(f"note: {note}", err=True)
     executor = _executor(jobs, ray_address)
     total = len(plan.runs) + len(plan.references)
     count = [0]
@@ -674,9 +680,9 @@ def sweep(scene_files, settings, reference, folder, jobs, ray_address, resume, q
         count[0] += 1
         line = sweep_module.progress_line(run, outcome, count[0], total)
         if outcome is None or outcome.status != "ok":
-            click.echo(f"error: {line}", err=True)
+            _echo_escaped(f"error: {line}", err=True)
         elif not quiet:
-            click.echo(line)
+            _echo_escaped(line)
 
     out = Path(folder)
     with _Signals() as signals:
@@ -689,17 +695,17 @@ def sweep(scene_files, settings, reference, folder, jobs, ray_address, resume, q
         written = sweep_module.write_report(plan, out, describe(executor))
     skipped = f", {result.skipped} already in the table" if result.skipped else ""
     runs = f"{result.done} run" + ("" if result.done == 1 else "s")
-    click.echo(f"sweep: {runs} in {result.wall_s:.3g} s {describe(executor)}"
+    _echo_escaped(f"sweep: {runs} in {result.wall_s:.3g} s {describe(executor)}"
                f"{skipped}; {len(result.failed)} failed")
     for line in sweep_module.fronts_summary(plan, out):
-        click.echo(line)
+        _echo_escaped(line)
     plots = len(written) - 1
-    click.echo(f"wrote {out / sweep_module.RUNS_CSV}, {out / sweep_module.ENTITIES_CSV}, "
+    _echo_escaped(f"wrote {out / sweep_module.RUNS_CSV}, {out / sweep_module.ENTITIES_CSV}, "
                f"{written[0]}" + (f" and {plots} plot(s)" if plots else
                                   " (no plot: no errors, or pip install matplotlib)"))
     if signals.received is not None:
         name = signal.Signals(signals.received).name
-        click.echo(f"interrupted by {name}: the finished runs are in the table; rerun with "
+        _echo_escaped(f"interrupted by {name}: the finished runs are in the table; rerun with "
                    f"--resume to do the rest", err=True)
         sys.exit(128 + signals.received)
     sys.exit(1 if result.failed else 0)
@@ -824,7 +830,7 @@ def regress(folder, names, golden, update, junit, jobs, ray_address, atol, rtol,
                                        tolerances=tolerances, check_pins=not no_pins,
                                        samples=samples)
     for note in plan.notes:
-        click.echo(f"note: {note}", err=True)
+        _echo_escaped(f"note: {note}", err=True)
     command = f"vrsim regress {folder} --golden {golden} --update"
 
     def on_case(case):
@@ -832,11 +838,11 @@ def regress(folder, names, golden, update, junit, jobs, ray_address, atol, rtol,
             return
         if case.status == "passed":
             if not quiet:
-                click.echo(f"{case.name}: ok")
+                _echo_escaped(f"{case.name}: ok")
             return
-        click.echo(f"{case.name}: {case.status.upper()}: " + "; ".join(case.reasons))
+        _echo_escaped(f"{case.name}: {case.status.upper()}: " + "; ".join(case.reasons))
         for line in case.lines:
-            click.echo(f"  {line}")
+            _echo_escaped(f"  {line}")
 
     executor = _executor(jobs, ray_address)
     with _Signals() as signals:
@@ -848,20 +854,20 @@ def regress(folder, names, golden, update, junit, jobs, ray_address, atol, rtol,
             executor.close()
         if signals.received is not None:
             name = signal.Signals(signals.received).name
-            click.echo(f"interrupted by {name}: nothing written", err=True)
+            _echo_escaped(f"interrupted by {name}: nothing written", err=True)
             sys.exit(128 + signals.received)
         if update:
-            not_written = regress_module.update_goldens(result, say=click.echo)
+            not_written = regress_module.update_goldens(result, say=_echo_escaped)
         if junit:
             regress_module.write_junit(result, Path(junit))
     counts = result.counts()
     passed = counts["tests"] - counts["failures"] - counts["errors"]
     if update:
-        click.echo(f"regress --update: {len(result.cases) - len(not_written)} goldens "
+        _echo_escaped(f"regress --update: {len(result.cases) - len(not_written)} goldens "
                    f"written or unchanged in {golden}, {len(not_written)} not written "
                    f"({result.wall_s:.3g} s {describe(executor)})")
         sys.exit(1 if not_written else 0)
-    click.echo(f"regress: {counts['tests']} scenes, {passed} passed, {counts['failures']} "
+    _echo_escaped(f"regress: {counts['tests']} scenes, {passed} passed, {counts['failures']} "
                f"failed, {counts['errors']} errors ({result.wall_s:.3g} s "
                f"{describe(executor)})" + (f"; JUnit XML in {junit}" if junit else ""))
     sys.exit(0 if result.ok else 1)
@@ -901,7 +907,7 @@ def plot(trajectory_file, output, patterns, scene_file):
     elif not any(s["energy"] is not None for s in data["entities"].values()):
         note = "no body with a finite mass and velocities among these entities"
     draw(data, f"{Path(trajectory_file).name}", out, note)
-    click.echo(f"wrote {out}: position, speed and energy of "
+    _echo_escaped(f"wrote {out}: position, speed and energy of "
                f"{', '.join(data['entities'])}")
 
 
