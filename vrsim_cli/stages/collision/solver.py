@@ -4,12 +4,18 @@ Two solvers share the impulse law of slide 5.4.2 (`vrsim_cli.impulse`) and a wor
 of body velocities (`Bodies`):
 
 - `resolve_impacts`: the impulses at one instant of impact (event-located by
-  `response.py`). Contacts are processed one at a time, always the one approaching
-  fastest, each with its own restitution (Guendelman, Bridson & Fedkiw 2003, propagation
-  of impulses): a chain of touching bodies (Newton's cradle) passes the impulse along in
-  order. Every impulse is the slide's exact alpha n plus Coulomb friction, so linear and
-  angular momentum are conserved to round-off and eps = 1 conserves energy pairwise.
-  After MAX_ELASTIC_PASSES impulses per contact, restitution drops to 0 so the loop ends.
+  `response.py`), in rounds. Each round takes every contact that approaches and solves
+  their normal impulses together: a small complementarity problem (impulses >= 0, each
+  normal velocity >= its own restitution target -eps v_n, one of the two tight), solved
+  exactly by active sets with a minimum-norm pseudo-inverse, so that the points of one
+  impact (a box landing flat, a bar on its edge) get equal impulses and a symmetric
+  impact stays symmetric (Anitescu & Potra 1997; Stewart & Trinkle 1996). Friction
+  follows in the same round, all points together, scaled into each Coulomb cone.
+  Contacts that only touch wait: when the impulses make them approach, the next round
+  solves them, so a chain passes the impulse along in order (Guendelman, Bridson &
+  Fedkiw 2003: Newton's cradle). Every impulse acts along the contact directions, so
+  linear and angular momentum are conserved to round-off. After MAX_ELASTIC_PASSES
+  rounds of a contact its restitution drops to 0, so the rounds end.
 
 - `solve_resting`: sequential impulses (Catto, GDC 2006; Box2D) for the contacts at the
   end of a step, restitution 0: accumulated normal impulses clamped to >= 0, friction
@@ -30,9 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.impulse import inverse_mass_along
 from vrsim_cli.maths.products import matmul
-
-from vrsim_cli.maths.impulse import inverse_mass_along, restitution_alpha
 from vrsim_cli.maths.rotation import cross
 
 MAX_ELASTIC_PASSES = 32  # impulses per contact at one impact before eps is set to 0
@@ -184,25 +189,107 @@ def _friction(bodies: Bodies, c: ContactSet, lam_t, limit):
 
 def resolve_impacts(bodies: Bodies, c: ContactSet, rest_speed: float) -> np.ndarray:
     """Apply the impulses of one instant of impact; returns the total impulse on B per
-    contact (k, 3) N s. A contact approaching slower than rest_speed gets eps = 0."""
+    contact (k, 3) N s. A contact approaching slower than rest_speed gets eps = 0.
+
+    In rounds: every contact that approaches now takes part in one solve (`_impact_round`:
+    the normal impulses of all its points together, Newton's restitution on each point's
+    own approach speed, then Coulomb friction together), so an impact at several points
+    at once (a box landing flat on its face, a bar on its edge) is symmetric. Contacts that
+    only touch do not take part: when the impulses make them approach, the next round
+    solves them, so a chain passes the impulse on ball by ball (Newton's cradle)."""
     k = len(c)
     lam = np.zeros((k, 3))
     count = np.zeros(k, np.int64)
+    responds = c.inv_k[:, 0] > 0
     for _ in range(MAX_ELASTIC_PASSES * k + 4 * k + 16 if k else 0):
-        vn = np.where(c.inv_k[:, 0] > 0, velocity_along(bodies, c, 0), 0.0)
-        i = int(np.argmin(vn))
-        if vn[i] >= -APPROACH_EPS:
+        vn = np.where(responds, velocity_along(bodies, c, 0), 0.0)
+        rows = np.flatnonzero(vn < -APPROACH_EPS)
+        if not len(rows):
             break
-        one = c.take(slice(i, i + 1))
-        eps = 0.0 if (-vn[i] < rest_speed or count[i] >= MAX_ELASTIC_PASSES) else \
-            float(c.restitution[i])
-        alpha = restitution_alpha(vn[i:i + 1], eps, 1.0 / one.inv_k[:, 0])
-        apply_along(bodies, one, alpha[:, None], slice(0, 1))
-        lam[i, 0] += alpha[0]
-        if one.friction[0] > 0.0:
-            lam[i, 1:] = _friction(bodies, one, lam[i:i + 1, 1:], one.friction * alpha)[0]
-        count[i] += 1
+        eps = np.where((-vn[rows] < rest_speed) | (count[rows] >= MAX_ELASTIC_PASSES), 0.0,
+                       c.restitution[rows])
+        lam[rows] += _impact_round(bodies, c.take(rows), -eps * vn[rows])
+        count[rows] += 1
     return np.einsum("kj,kjd->kd", lam, c.dirs)
+
+
+def _delassus(c: ContactSet, dirs) -> np.ndarray:
+    """(m, m) velocity change along the rows (contact i, direction dirs[p]) per unit
+    impulse along the rows: W = J M^-1 J^T, summed over the bodies two rows share (fixed
+    bodies have zero lin and rot rows, so sharing one adds nothing)."""
+    k, d = len(c), len(dirs)
+    body = {"b": np.repeat(c.b, d), "a": np.repeat(c.a, d)}
+    sign = {"b": 1.0, "a": -1.0}
+    row_dir = c.dirs[:, dirs].reshape(k * d, 3)
+    jac = {"b": c.jac_b[:, dirs].reshape(k * d, 3), "a": c.jac_a[:, dirs].reshape(k * d, 3)}
+    lin = {"b": c.lin_b[:, dirs].reshape(k * d, 3), "a": c.lin_a[:, dirs].reshape(k * d, 3)}
+    rot = {"b": c.rot_b[:, dirs].reshape(k * d, 3), "a": c.rot_a[:, dirs].reshape(k * d, 3)}
+    W = np.zeros((k * d, k * d))
+    for s_ in "ba":  # the body of row i whose velocity the relative velocity reads
+        for t in "ba":  # the body of row j that the impulse moves
+            same = body[s_][:, None] == body[t][None, :]
+            effect = np.einsum("id,jd->ij", row_dir, lin[t]) + \
+                np.einsum("id,jd->ij", jac[s_], rot[t])
+            W += np.where(same, sign[s_] * sign[t] * effect, 0.0)
+    return 0.5 * (W + W.T)
+
+
+def _apply_all(bodies: Bodies, c: ContactSet, lam, dirs) -> None:
+    """Impulses sum_p lam[:, p] d_p at every row at once (rows may share bodies)."""
+    np.add.at(bodies.vel, c.b, np.einsum("kj,kjd->kd", lam, c.lin_b[:, dirs]))
+    np.add.at(bodies.angvel, c.b, np.einsum("kj,kjd->kd", lam, c.rot_b[:, dirs]))
+    np.add.at(bodies.vel, c.a, -np.einsum("kj,kjd->kd", lam, c.lin_a[:, dirs]))
+    np.add.at(bodies.angvel, c.a, -np.einsum("kj,kjd->kd", lam, c.rot_a[:, dirs]))
+
+
+def _lcp(W, v, target) -> np.ndarray:
+    """lam >= 0 with w = v + W lam >= target and lam (w - target) = 0, by active sets:
+    solve the active rows exactly (minimum-norm, so equal points get equal impulses),
+    drop rows that would pull, add rows that would still approach; small m, few rounds."""
+    m = len(v)
+    active = np.ones(m, bool)
+    lam = np.zeros(m)
+    for _ in range(4 * m + 4):
+        lam = np.zeros(m)
+        if active.any():
+            sub = np.ix_(active, active)
+            lam[active] = matmul(_pinv(W[sub][None])[0], (target - v)[active])
+        pulls = active & (lam < 0.0)
+        if pulls.any():
+            active[np.argmin(np.where(pulls, lam, np.inf))] = False
+            continue
+        w = v + matmul(W, lam)
+        short = ~active & (w < target - 1e-12 * (1.0 + np.abs(target)))
+        if not short.any():
+            break
+        active[np.argmin(np.where(short, w - target, np.inf))] = True
+    return np.maximum(lam, 0.0)
+
+
+def _impact_round(bodies: Bodies, c: ContactSet, target) -> np.ndarray:
+    """One round of an impact: normal impulses (k,) of all rows together so that each
+    row's normal velocity becomes >= target (its restitution target) with complementarity,
+    then friction: the tangential impulses that stop the slip of all rows together,
+    scaled into each row's cone |lam_t| <= mu lam_n. Applies them; returns lam (k, 3)."""
+    k = len(c)
+    lam = np.zeros((k, 3))
+    vn = velocity_along(bodies, c, 0)
+    lam[:, 0] = _lcp(_delassus(c, [0]), vn, target)
+    _apply_all(bodies, c, lam[:, :1], [0])
+    limit = c.friction * lam[:, 0]
+    rubbing = limit > 0.0
+    if rubbing.any():
+        f = c.take(np.flatnonzero(rubbing))
+        vt = velocity_along(bodies, f, slice(1, 3)).ravel()
+        if np.abs(vt).max() > 0.0:
+            W = _delassus(f, [1, 2])
+            lt = matmul(_pinv(W[None])[0], -vt).reshape(-1, 2)
+            size = np.sqrt(np.einsum("kj,kj->k", lt, lt))
+            cap = limit[rubbing]
+            lt *= np.where(size > cap, cap / np.where(size > 0.0, size, 1.0), 1.0)[:, None]
+            _apply_all(bodies, f, lt, [1, 2])
+            lam[rubbing, 1:] = lt
+    return lam
 
 
 def colours(a, b, movable) -> list[np.ndarray]:
