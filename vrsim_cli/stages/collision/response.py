@@ -360,6 +360,8 @@ def resting(model, start, state, last=None, c=None):
         cs = _contact_set(model, bodies, c, rows)
         warm = _warm_start(start, sub, model)
         impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm)
+        dpos += _tangential_drift(model, last, state, bodies, c, rows[
+            np.abs(impulse[rows]).max(axis=1) > 0.0])
         dp, dth = solver.correct_positions(bodies, cs, rm.slop, rm.position_iterations)
         dpos += dp
         dtheta += dth
@@ -370,6 +372,41 @@ def resting(model, start, state, last=None, c=None):
     if stopped.any() and model.rigid is not None and model.rigid.n_rot:
         new = _restore_orientation(model, last, new, stopped)
     return new, c, impulse
+
+
+def _tangential_drift(model, last, state, bodies, c: Contacts, rows) -> np.ndarray:
+    """(n, 3) m: the translation that makes a body held by resting contact move along its
+    contact surfaces as its corrected velocity says, not as the free flight did.
+
+    The free flight from `last` (the step's start or its last impact) moved every body
+    with the unconstrained velocities: a box that friction holds on an incline slid by
+    g sin(th) h^2 / 2 per step before the resting impulses set its velocity to zero, and
+    crept. Here its position along the surfaces is integrated again with the trapezoid of
+    its velocity before and after the contact impulses, x = x_last + h (v_last + v) / 2,
+    exact for the constant accelerations of sticking and of sliding. Only the components
+    along the surfaces are replaced: along the normals the penetration pass decides."""
+    drift = np.zeros((model.n_body, 3))
+    if not len(rows):
+        return drift
+    h = state.t - last.t
+    moved = last.body_pos + (0.5 * h) * (last.body_vel + bodies.vel)
+    delta = moved - state.body_pos
+    for body in np.unique(np.concatenate([c.body_a[rows], c.body_b[rows]])).tolist():
+        if bodies.inv_mass[body] <= 0.0:
+            continue
+        normals = c.normal[rows[(c.body_a[rows] == body) | (c.body_b[rows] == body)]]
+        d = delta[body].copy()
+        basis = []
+        for n in normals:  # remove the components along the span of the normals
+            for e in basis:
+                n = n - dot(n, e) * e
+            size = float(np.sqrt(dot(n, n)))
+            if size > 1e-9:
+                basis.append(n / size)
+        for e in basis:
+            d = d - dot(d, e) * e
+        drift[body] = d
+    return drift
 
 
 def _restore_orientation(model, start, state, stopped):
