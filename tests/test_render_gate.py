@@ -85,3 +85,27 @@ def test_this_machine_renders_when_the_gate_lets_it():
     model = compile_model(parse_scene("vrsim: 1\nduration: 0.1\nbodies: [{name: b, mass: 1}]\n"))
     renderer = open_renderer(model, 16, 16)
     renderer.close()
+
+
+def test_frames_asked_by_the_scene_without_osmesa_is_a_located_error(tmp_path):
+    """Without OSMesa, frames asked for by the scene (output.frames.dir) are refused at the
+    scene's key (file:line:col), by --frames at the option; exit 2, nothing written."""
+    import subprocess
+    import sys
+
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("vrsim: 1\nduration: 0.1\nbodies: [{name: a, mass: 1}]\n"
+                     "output: {frames: {dir: fr}}\n")
+    child = ("import sys; sys.path.insert(0, %r); import conftest; "
+             "from vrsim_cli.cli import cli; cli.main(sys.argv[1:], prog_name='vrsim')"
+             % str(REPO / "tests"))
+    env = {**os.environ, "VRSIM_TEST_HIDE_OSMESA": "1"}
+    for extra, where in (([], f"{scene}:4:24: output.frames.dir: "),
+                         (["--frames", str(tmp_path / "f2")], "command line (--frames): output.frames.dir: ")):
+        proc = subprocess.run([sys.executable, "-c", child, "run", str(scene), "-o",
+                               str(tmp_path / "o.csv"), *extra], capture_output=True,
+                              text=True, env=env, cwd=tmp_path, timeout=120)
+        assert proc.returncode == 2, proc.stderr
+        assert f"error: {where}rendering frames needs off-screen OpenGL" in proc.stderr
+        assert "libosmesa6" in proc.stderr
+        assert not (tmp_path / "o.csv").exists()

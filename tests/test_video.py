@@ -60,6 +60,7 @@ def test_missing_imageio_is_reported_before_the_run(invoke, write_scene, tmp_pat
     assert not out.exists() and not (tmp_path / "f").exists()
 
 
+@pytest.mark.osmesa
 def test_a_100_hz_gif_keeps_one_image_in_two_with_20_ms_delays(invoke, write_scene, tmp_path):
     """Browsers play GIF delays under 20 ms as 100 ms: at 100 Hz the GIF keeps every second
     image, 20 ms each, so it plays in real time (and says so)."""

@@ -261,7 +261,13 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         try:
             try:
                 # before simulating: a missing OSMesa fails at once
-                frames = _open_frames(model, video)
+                try:
+                    frames = _open_frames(model, video)
+                except InputError as exc:  # OSMesa missing: located at what asked for frames
+                    if type(exc).__name__ != "RenderUnavailable":  # (the scene or --frames)
+                        raise
+                    raise InputError([scene.problem(("output", "frames", "dir"), p.message)
+                                      for p in exc.problems]) from None
                 writer = open_writer(model, model.output.path, model.output.format,
                                      live=server)
                 if server is not None:

@@ -28,7 +28,7 @@ class RenderUnavailable(InputError):
     """Frames were asked for but cannot be rendered on this machine (exit 2)."""
 
     def __init__(self, reason: str):
-        super().__init__(f"--frames needs off-screen OpenGL (OSMesa), which is not "
+        super().__init__(f"rendering frames needs off-screen OpenGL (OSMesa), which is not "
                          f"available: {reason}; {INSTALL_HINT}")
 
 
