@@ -101,6 +101,9 @@ class Problem:
     # engine -> runner(quick, repeats) -> [Point] (work precision) or [Row] (throughput)
     runners: dict = field(default_factory=dict)
     kind: str = "work-precision"  # or "throughput"
+    # throughput: section(problem, rows) -> Markdown lines, in place of the generic table
+    # (free-bodies: its ratio tables and start-up)
+    section: Callable | None = None
 
 
 @dataclass
