@@ -30,7 +30,8 @@ Engines:
   file's value limit, and parsing them would take minutes); one output sample at the
   end and no writer, so `loop.run` makes one compiled call for all the steps (the
   blow-up checks and the energy guard included), as MuJoCo's `mj_step(nstep)` does.
-- MuJoCo: one free joint per body, geoms with contype = conaffinity = 0 (no contacts),
+- MuJoCo: one free joint per body, geoms with contype = conaffinity = 0 and the contact
+  flag disabled (no collision stage at all),
   the same mass (box: the same edges, so the same inertia; points and sphere: a sphere
   geom of r = 0.05 m: a free joint also integrates its rotation, which MuJoCo cannot
   leave out for a free body); integrators Euler, implicitfast and RK4; one
@@ -262,9 +263,12 @@ def vrsim_free_bodies(quick: bool, repeats: int) -> list:
 
 
 def mujoco_xml(scene: str, n: int, integrator: str = "Euler") -> str:
-    """The scene in MJCF. Above 1000 bodies the arena is sized explicitly (20 kB per
-    body): MuJoCo's automatic size fails at 10000 free bodies ("Could not allocate
-    memory"); its size does not change the cost of a step."""
+    """The scene in MJCF: contype = conaffinity = 0 and the contact flag disabled (the
+    flag skips mj_collision, whose broad phase otherwise asks for ~2 N^2 bytes of arena
+    and costs ~5 % at N = 1000: MuJoCo at its cheapest for a scene without contacts).
+    Above 1000 bodies the arena is sized explicitly (20 kB per body): MuJoCo's automatic
+    size fails at 10000 free bodies ("Could not allocate memory"); the size does not
+    change the cost of a step."""
     pos, _, _, edges = layout(scene, n)
     g = (0.0, 0.0, 0.0) if scene == "boxes" else G
     bodies = []
@@ -278,8 +282,8 @@ def mujoco_xml(scene: str, n: int, integrator: str = "Euler") -> str:
                       f'<geom {geom} contype="0" conaffinity="0"/></body>')
     size = f'<size memory="{20 * n}K"/>' if n > 1000 else ""
     return (f'<mujoco><option timestep="{DT!r}" integrator="{integrator}" '
-            f'gravity="{" ".join(map(repr, g))}"/>{size}<worldbody>{"".join(bodies)}'
-            f'</worldbody></mujoco>')
+            f'gravity="{" ".join(map(repr, g))}"><flag contact="disable"/></option>{size}'
+            f'<worldbody>{"".join(bodies)}</worldbody></mujoco>')
 
 
 def _mujoco_runs(scene: str, n: int, steps: int, integrators, repeats: int) -> list:
@@ -442,7 +446,7 @@ def ratios(rows) -> list[dict]:
 def markdown(problem, rows) -> list[str]:
     """The problem's section of bench.md: every row with its figures, then the ratios and
     the start-up."""
-    from vrsim_cli.tools.bench.report import _format_figure
+    from vrsim_cli.tools.bench.problems import format_figure
 
     figures = list(dict.fromkeys(key for r in rows for key in r.sanity))
     lines = [f"## {problem.name}", "", f"{problem.description}. Sanity: {problem.truth}.", "",
@@ -452,7 +456,7 @@ def markdown(problem, rows) -> list[str]:
     for r in rows:
         if r.setting.startswith("start-up"):
             continue
-        values = " | ".join(_format_figure(r.sanity.get(key)) for key in figures)
+        values = " | ".join(format_figure(r.sanity.get(key)) for key in figures)
         lines.append(f"| {r.engine} | {r.setting} | {r.bodies} | {r.steps} | "
                      f"{1e3 * r.ms_per_step:.3f} | {1e9 / r.body_steps_per_s:.1f} | {values} |")
     found = ratios(rows)

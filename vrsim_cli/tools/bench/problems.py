@@ -127,6 +127,13 @@ def best_time(fn: Callable[[], object], repeats: int) -> tuple[float, object]:
     return best, result
 
 
+def format_figure(value) -> str:
+    """A sanity figure in a report table: integers as they are, floats to 3 digits."""
+    if value is None:
+        return "-"
+    return f"{value:d}" if isinstance(value, (int, np.integer)) else f"{value:.3g}"
+
+
 # ----------------------------------------------------------------------------- reference cache
 
 def cache_dir() -> Path:

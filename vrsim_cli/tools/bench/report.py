@@ -20,7 +20,7 @@ from vrsim_cli.tools.bench import peers as bench_peers
 from vrsim_cli.tools.bench import spheres as bench_spheres
 from vrsim_cli.tools.bench.problems import (REPEAT_BUDGET_S, Point, Problem, Results, Row,
                                             _vrsim_bounce, _vrsim_dzhanibekov,
-                                            _vrsim_projectile, _vrsim_stack)
+                                            _vrsim_projectile, _vrsim_stack, format_figure)
 
 __all__ = ["REPEAT_BUDGET_S", "markdown", "plot", "problems", "run_bench", "summary",
            "throughput_summary", "to_json"]
@@ -91,8 +91,9 @@ def problems() -> dict[str, Problem]:
                         "whole `vrsim run scenarios/projectile.yaml` (tools/bench/"
                         "freebodies.py)",
             truth="boxes: largest relative drift of energy and of the world angular "
-                  "momentum vector, position error against x0 + v0 t (m); points and "
-                  "sphere: position error against x0 + v0 t + g t^2/2 (m)",
+                  "momentum vector, orientation error (rad) of the first 4 boxes against "
+                  "scipy DOP853 on Euler's equations, position error against x0 + v0 t "
+                  "(m); points and sphere: position error against x0 + v0 t + g t^2/2 (m)",
             kind="throughput",
             runners={"vrsim": bench_free.vrsim_free_bodies,
                      "mujoco": bench_free.mujoco_free_bodies},
@@ -224,7 +225,7 @@ def throughput_markdown(problem: Problem, rows: list[Row]) -> list[str]:
              + " | ".join(figures) + " |",
              "|---|---|---|---|---|---|" + "---|" * len(figures)]
     for r in rows:
-        values = " | ".join(_format_figure(r.sanity.get(key)) for key in figures)
+        values = " | ".join(format_figure(r.sanity.get(key)) for key in figures)
         lines.append(f"| {r.engine} | {r.setting} | {r.bodies} | {r.steps} | "
                      f"{r.ms_per_step:.3f} | {r.body_steps_per_s:.4g} | {values} |")
     lines += ["", "Highest throughput per engine (vrsim / engine > 1: vrsim is faster):", "",
@@ -235,12 +236,6 @@ def throughput_markdown(problem: Problem, rows: list[Row]) -> list[str]:
         lines.append(f"| {e['bodies']} | {e['engine']} | {e['setting']} | "
                      f"{e['ms_per_step']:.3f} | {e['body_steps_per_s']:.4g} | {ratio} |")
     return lines + [""]
-
-
-def _format_figure(value) -> str:
-    if value is None:
-        return "-"
-    return f"{value:d}" if isinstance(value, (int, np.integer)) else f"{value:.3g}"
 
 
 def plot(results: Results, folder: Path) -> list[Path]:
