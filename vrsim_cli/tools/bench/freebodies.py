@@ -26,13 +26,13 @@ Correctness, so that a fast wrong answer shows (the `sanity` figures of every ro
 Both are computed by the same function from every engine's final state.
 
 Engines:
-- vrsim: the scene built from a dict (not YAML text: 10000 bodies exceed the scene
-  file's value limit, and parsing them would take minutes); one output sample at the
-  end and no writer, so `loop.run` makes one compiled call for all the steps (the
+- vrsim: the scene as a dict; up to 100 bodies it is read as scene text with the file's
+  full validation, above that it goes straight to compile_model (10000 bodies exceed
+  the scene file's value limit, and parsing them would take minutes); one output
+  sample at the end and no writer, so `loop.run` makes one compiled call for all the steps (the
   blow-up checks and the energy guard included), as MuJoCo's `mj_step(nstep)` does.
 - MuJoCo: one free joint per body, geoms with contype = conaffinity = 0 and the contact
-  flag disabled (no collision stage at all),
-  the same mass (box: the same edges, so the same inertia; points and sphere: a sphere
+  flag disabled (no collision stage at all), the same mass (box: the same edges, so the same inertia; points and sphere: a sphere
   geom of r = 0.05 m: a free joint also integrates its rotation, which MuJoCo cannot
   leave out for a free body); integrators Euler, implicitfast and RK4; one
   `mj_step(model, data, nstep)` call. Same coordinates and gravity vector as vrsim.
@@ -446,19 +446,11 @@ def ratios(rows) -> list[dict]:
 def markdown(problem, rows) -> list[str]:
     """The problem's section of bench.md: every row with its figures, then the ratios and
     the start-up."""
-    from vrsim_cli.tools.bench.problems import format_figure
+    from vrsim_cli.tools.bench.problems import throughput_table
 
-    figures = list(dict.fromkeys(key for r in rows for key in r.sanity))
-    lines = [f"## {problem.name}", "", f"{problem.description}. Sanity: {problem.truth}.", "",
-             "| engine | setting | bodies | steps | wall/step (us) | ns/body-step | "
-             + " | ".join(figures) + " |",
-             "|---|---|---|---|---|---|" + "---|" * len(figures)]
-    for r in rows:
-        if r.setting.startswith("start-up"):
-            continue
-        values = " | ".join(format_figure(r.sanity.get(key)) for key in figures)
-        lines.append(f"| {r.engine} | {r.setting} | {r.bodies} | {r.steps} | "
-                     f"{1e3 * r.ms_per_step:.3f} | {1e9 / r.body_steps_per_s:.1f} | {values} |")
+    timed = [r for r in rows if not r.setting.startswith("start-up")]
+    lines = throughput_table(problem, timed, ("wall/step (us)", "ns/body-step"), lambda r: (
+        f"{1e3 * r.ms_per_step:.3f}", f"{1e9 / r.body_steps_per_s:.1f}"))
     found = ratios(rows)
     if found:
         lines += ["", "vrsim wall time / MuJoCo wall time at the same N and steps (< 1: "

@@ -20,7 +20,8 @@ from vrsim_cli.tools.bench import peers as bench_peers
 from vrsim_cli.tools.bench import spheres as bench_spheres
 from vrsim_cli.tools.bench.problems import (REPEAT_BUDGET_S, Point, Problem, Results, Row,
                                             _vrsim_bounce, _vrsim_dzhanibekov,
-                                            _vrsim_projectile, _vrsim_stack, format_figure)
+                                            _vrsim_projectile, _vrsim_stack,
+                                            throughput_table)
 
 __all__ = ["REPEAT_BUDGET_S", "markdown", "plot", "problems", "run_bench", "summary",
            "throughput_summary", "to_json"]
@@ -219,15 +220,8 @@ def throughput_summary(rows: list[Row]) -> list[dict]:
 
 
 def throughput_markdown(problem: Problem, rows: list[Row]) -> list[str]:
-    figures = list(dict.fromkeys(key for r in rows for key in r.sanity))
-    lines = [f"## {problem.name}", "", f"{problem.description}. Sanity: {problem.truth}.", "",
-             "| engine | setting | bodies | steps | wall/step (ms) | body-steps/s | "
-             + " | ".join(figures) + " |",
-             "|---|---|---|---|---|---|" + "---|" * len(figures)]
-    for r in rows:
-        values = " | ".join(format_figure(r.sanity.get(key)) for key in figures)
-        lines.append(f"| {r.engine} | {r.setting} | {r.bodies} | {r.steps} | "
-                     f"{r.ms_per_step:.3f} | {r.body_steps_per_s:.4g} | {values} |")
+    lines = throughput_table(problem, rows, ("wall/step (ms)", "body-steps/s"), lambda r: (
+        f"{r.ms_per_step:.3f}", f"{r.body_steps_per_s:.4g}"))
     lines += ["", "Highest throughput per engine (vrsim / engine > 1: vrsim is faster):", "",
               "| bodies | engine | best setting | wall/step (ms) | body-steps/s | "
               "vrsim / engine |", "|---|---|---|---|---|---|"]
