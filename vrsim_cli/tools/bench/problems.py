@@ -101,6 +101,9 @@ class Problem:
     # engine -> runner(quick, repeats) -> [Point] (work precision) or [Row] (throughput)
     runners: dict = field(default_factory=dict)
     kind: str = "work-precision"  # or "throughput"
+    # throughput: section(problem, rows) -> Markdown lines, in place of the generic table
+    # (free-bodies: its ratio tables and start-up)
+    section: Callable | None = None
 
 
 @dataclass
@@ -122,6 +125,30 @@ def best_time(fn: Callable[[], object], repeats: int) -> tuple[float, object]:
         if spent >= REPEAT_BUDGET_S:
             break
     return best, result
+
+
+def format_figure(value) -> str:
+    """A sanity figure in a report table: integers as they are, floats to 3 digits."""
+    if value is None:
+        return "-"
+    return f"{value:d}" if isinstance(value, (int, np.integer)) else f"{value:.3g}"
+
+
+def throughput_table(problem: Problem, rows: list, heads: tuple, cells) -> list[str]:
+    """A throughput problem's heading and one table line per row: engine, setting,
+    bodies, steps, two cost columns (`heads`, and `cells(row)` -> two strings), then
+    every sanity figure found in the rows."""
+    figures = list(dict.fromkeys(key for r in rows for key in r.sanity))
+    lines = [f"## {problem.name}", "", f"{problem.description}. Sanity: {problem.truth}.", "",
+             f"| engine | setting | bodies | steps | {heads[0]} | {heads[1]} | "
+             + " | ".join(figures) + " |",
+             "|---|---|---|---|---|---|" + "---|" * len(figures)]
+    for r in rows:
+        values = " | ".join(format_figure(r.sanity.get(key)) for key in figures)
+        first, second = cells(r)
+        lines.append(f"| {r.engine} | {r.setting} | {r.bodies} | {r.steps} | {first} | "
+                     f"{second} | {values} |")
+    return lines
 
 
 # ----------------------------------------------------------------------------- reference cache

@@ -15,11 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
+from vrsim_cli.tools.bench import freebodies as bench_free
 from vrsim_cli.tools.bench import peers as bench_peers
 from vrsim_cli.tools.bench import spheres as bench_spheres
 from vrsim_cli.tools.bench.problems import (REPEAT_BUDGET_S, Point, Problem, Results, Row,
                                             _vrsim_bounce, _vrsim_dzhanibekov,
-                                            _vrsim_projectile, _vrsim_stack)
+                                            _vrsim_projectile, _vrsim_stack,
+                                            throughput_table)
 
 __all__ = ["REPEAT_BUDGET_S", "markdown", "plot", "problems", "run_bench", "summary",
            "throughput_summary", "to_json"]
@@ -80,6 +82,23 @@ def problems() -> dict[str, Problem]:
             kind="throughput",
             runners={"vrsim": _vrsim_stack, "mujoco": bench_peers.mujoco_stack,
                      "pybullet": bench_peers.pybullet_stack}),
+        Problem(
+            name=bench_free.PROBLEM,
+            description="N = 1, 10, 100, 1000, 10000 (--quick: 1, 10, 100) free bodies, "
+                        "dt = 1 ms, no contacts, one timed call of ~500 000 body-steps "
+                        "(--quick: 20 000): torque-free spinning boxes (random edges 0.1-1 "
+                        "m, w ~ N(0, 2 rad/s)), point masses under gravity, and one sphere "
+                        "(a rigid body) under gravity with rk4; plus the wall time of a "
+                        "whole `vrsim run scenarios/projectile.yaml` (tools/bench/"
+                        "freebodies.py)",
+            truth="boxes: largest relative drift of energy and of the world angular "
+                  "momentum vector, orientation error (rad) of the first 4 boxes against "
+                  "scipy DOP853 on Euler's equations, position error against x0 + v0 t "
+                  "(m); points and sphere: position error against x0 + v0 t + g t^2/2 (m)",
+            kind="throughput",
+            runners={"vrsim": bench_free.vrsim_free_bodies,
+                     "mujoco": bench_free.mujoco_free_bodies},
+            section=bench_free.markdown),
     ]
     return {p.name: p for p in listed}
 
@@ -175,7 +194,8 @@ def markdown(results: Results, repeats_note: str) -> str:
                              f"{1e3 * row['least_error_wall_s']:.3f} |")
         lines.append("")
     for name in dict.fromkeys(r.problem for r in results.rows):
-        lines += throughput_markdown(table[name], [r for r in results.rows if r.problem == name])
+        section = table[name].section or throughput_markdown
+        lines += section(table[name], [r for r in results.rows if r.problem == name])
     return "\n".join(lines)
 
 
@@ -200,15 +220,8 @@ def throughput_summary(rows: list[Row]) -> list[dict]:
 
 
 def throughput_markdown(problem: Problem, rows: list[Row]) -> list[str]:
-    figures = list(dict.fromkeys(key for r in rows for key in r.sanity))
-    lines = [f"## {problem.name}", "", f"{problem.description}. Sanity: {problem.truth}.", "",
-             "| engine | setting | bodies | steps | wall/step (ms) | body-steps/s | "
-             + " | ".join(figures) + " |",
-             "|---|---|---|---|---|---|" + "---|" * len(figures)]
-    for r in rows:
-        values = " | ".join(_format_figure(r.sanity.get(key)) for key in figures)
-        lines.append(f"| {r.engine} | {r.setting} | {r.bodies} | {r.steps} | "
-                     f"{r.ms_per_step:.3f} | {r.body_steps_per_s:.4g} | {values} |")
+    lines = throughput_table(problem, rows, ("wall/step (ms)", "body-steps/s"), lambda r: (
+        f"{r.ms_per_step:.3f}", f"{r.body_steps_per_s:.4g}"))
     lines += ["", "Highest throughput per engine (vrsim / engine > 1: vrsim is faster):", "",
               "| bodies | engine | best setting | wall/step (ms) | body-steps/s | "
               "vrsim / engine |", "|---|---|---|---|---|---|"]
@@ -217,12 +230,6 @@ def throughput_markdown(problem: Problem, rows: list[Row]) -> list[str]:
         lines.append(f"| {e['bodies']} | {e['engine']} | {e['setting']} | "
                      f"{e['ms_per_step']:.3f} | {e['body_steps_per_s']:.4g} | {ratio} |")
     return lines + [""]
-
-
-def _format_figure(value) -> str:
-    if value is None:
-        return "-"
-    return f"{value:d}" if isinstance(value, (int, np.integer)) else f"{value:.3g}"
 
 
 def plot(results: Results, folder: Path) -> list[Path]:
@@ -253,6 +260,9 @@ def plot(results: Results, folder: Path) -> list[Path]:
         written.append(_save(fig, folder / f"{name}.png", plt))
     for name in dict.fromkeys(r.problem for r in results.rows):
         rows = [r for r in results.rows if r.problem == name]
+        if name == bench_free.PROBLEM:  # cost per body-step against N
+            written.append(bench_free.plot(rows, folder / f"{name}.png", plt))
+            continue
         fig, ax = plt.subplots(figsize=(6.4, 0.6 + 0.45 * len(rows)))
         ax.barh([f"{r.engine}: {r.setting}"[:60] for r in rows],
                 [r.body_steps_per_s for r in rows])
@@ -277,4 +287,7 @@ def to_json(results: Results) -> str:
             for r in results.rows]
     return json.dumps({"machine": machine(), "points": [asdict(p) for p in results.points],
                        "summary": summary(results.points), "throughput": rows,
-                       "throughput_summary": throughput_summary(results.rows)}, indent=2)
+                       "throughput_summary": throughput_summary(results.rows),
+                       "free_bodies": bench_free.ratios(
+                           [r for r in results.rows if r.problem == bench_free.PROBLEM])},
+                      indent=2)
