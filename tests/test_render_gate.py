@@ -45,7 +45,7 @@ def test_vrsims_probe_sees_a_missing_library(monkeypatch):
 
 def pytest_run(*args, **env) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-q",
-                           "-rs", *args], cwd=REPO, capture_output=True, text=True,
+                           "-n", "0", "-rs", *args], cwd=REPO, capture_output=True, text=True,
                           timeout=300, env={**os.environ, **env})
 
 
