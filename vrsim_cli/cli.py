@@ -234,7 +234,8 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     if as_json and to_stdout:
         raise click.UsageError("--json prints the summary on standard output; -o - writes "
                                "the trajectory there: give -o a file")
-    prepare_kernels(model, say)  # compiled once after an install; before any output
+    with interrupts.held():  # numba calls back into Python: a signal waits for the end
+        prepare_kernels(model, say)  # compiled once after an install; before any output
     server = None
     if live:
         from vrsim_cli.writers.live import LiveServer

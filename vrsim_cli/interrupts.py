@@ -7,6 +7,8 @@ Two modes:
 - immediate (start-up, validation, `info`, `compare`, ...: nothing is being written): a
   signal raises `Interrupted`, which the entry point reports as `interrupted by SIGINT`
   with exit 128 + the signal number (130, 143), never a traceback;
+- held (`held()`, while kernels are compiled or loaded): a signal waits for the block's
+  end, then acts as in the mode around it;
 - deferred (while a run writes its output, `deferred()`): the first signal only sets
   `received`, which the loop polls once per frame, so the output is finalised up to the
   last frame; a second one raises `Interrupted`, and the output is discarded (the
@@ -26,6 +28,8 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 received: int | None = None  # the first signal received in deferred mode
 _deferred = 0  # nesting depth of deferred()
+_held = 0  # nesting depth of held()
+_pending: int | None = None  # the first signal received while held
 
 
 class Interrupted(BaseException):
@@ -42,7 +46,11 @@ class Interrupted(BaseException):
 
 
 def _handle(signum, _frame) -> None:
-    global received
+    global received, _pending
+    if _held:
+        if _pending is None:
+            _pending = signum
+        return
     if _deferred and received is None:
         received = signum
         return
@@ -79,6 +87,23 @@ def deferred():
         yield
     finally:
         _deferred -= 1
+
+
+@contextmanager
+def held():
+    """Signals wait until the block ends, then act as they would have. For code that
+    Python is called back from C in (numba compiling or loading kernels from its disk
+    cache): an exception the handler raised there would be printed as "Exception ignored"
+    with a traceback and lost, and the run would go on."""
+    global _held, _pending
+    _held += 1
+    try:
+        yield
+    finally:
+        _held -= 1
+        if _held == 0 and _pending is not None:
+            signum, _pending = _pending, None
+            _handle(signum, None)
 
 
 def name(signum: int) -> str:
