@@ -46,6 +46,7 @@ from vrsim_cli.model.rigid import (RigidModel, angular_velocity, mechanical_ener
                                    spring_ends)
 from vrsim_cli.model.state import State
 from reference_free_body import exact_free_rotation
+from vrsim_cli.stages.dynamics.rigid import check  # the package's checks, not a copy
 
 # A conserving scene has blown up when its energy grew by more than this fraction of
 # (kinetic + |spring| energy now and at t = 0, + m|g| * 1 m per body): a free rotor whose
@@ -325,34 +326,3 @@ def energy(model: Model, state: State):
     return mechanical_energy(model.rigid, model.body_mass, model.gravity, state.body_pos,
                              state.body_vel, state.rot_matrix, state.rot_angmom)
 
-
-def check(model: Model, state: State) -> None:
-    """Raise SimulationError naming the body when the rotation is not finite (every step)
-    or, in a scene that conserves energy (no driving forces; damping allowed), the energy
-    grew past the bound of ENERGY_GROWTH_LIMIT (checked at every frame)."""
-    rigid = model.rigid
-    if rigid is None:
-        return
-    if rigid.n_rot:
-        finite = np.isfinite(state.rot_angmom).all(1) & np.isfinite(state.rot_matrix).all((1, 2))
-        if not finite.all():
-            body = model.body_name[rigid.rot_index[int(np.argmin(finite))]]
-            raise SimulationError("orientation or angular momentum is not finite (NaN or "
-                                  "Inf): the integration blew up; try a smaller dt or "
-                                  "another integrator", body=body, t=state.t)
-    # Energy grows over many steps, not in one: check it once per frame (and at the end).
-    if not rigid.energy_guard or state.t < rigid.energy_guard_from or (
-            state.step % model.steps_per_frame and state.step != model.n_steps):
-        return
-    baseline = rigid.energy0_body if state.rot_energy0 is None else state.rot_energy0
-    per_body, kinetic, spring = energy(model, state)
-    gain = per_body.sum() - baseline.sum()
-    mass = np.where(np.isfinite(model.body_mass), model.body_mass, 0.0)
-    weight = float(mass.sum() * np.linalg.norm(model.gravity) * GRAVITY_SCALE_M)
-    bound = ENERGY_GROWTH_LIMIT * (kinetic + abs(spring) + rigid.energy0_scale + weight)
-    if gain > bound:
-        body = int(np.argmax(per_body - baseline))
-        raise SimulationError(f"the energy grew by {gain:.4g} J in a scene that conserves "
-                              f"it (bound {bound:.4g} J): the integration blew up; try a "
-                              f"smaller dt or another integrator",
-                              body=model.body_name[body], t=state.t)
