@@ -54,6 +54,67 @@ def test_stop_request_ends_the_run_at_a_frame_boundary():
     assert result.interrupted and result.frames == 3 and result.state.step == 30
 
 
+def _counting_calls(monkeypatch):
+    """The steps of every compiled dynamics call the loop makes."""
+    from vrsim_cli.stages.dynamics import motion
+
+    counts, real = [], motion.run
+    monkeypatch.setattr(motion, "run", lambda m, s, n, *a: counts.append(n) or real(m, s, n, *a))
+    return counts
+
+
+@pytest.mark.parametrize("n_body, integrator", [(1, "rk4"), (3, "symplectic-euler"),
+                                                (2, "verlet")])
+def test_coarse_callbacks_make_one_compiled_call_per_output_sample(monkeypatch, n_body,
+                                                                   integrator):
+    """Issue 16: between two output samples one compiled call, also under the command
+    line's signal check and progress bar (coarse callbacks); the states are those of a
+    run without callbacks, bit for bit."""
+    bodies = ", ".join(f"{{name: b{i}, mass: 1, shape: {{type: box, size: [0.1, 0.2, 0.3]}}, "
+                       f"angular_velocity: [0.1, {i + 1}, 0.2], velocity: [{i}, 2, 0]}}"
+                       for i in range(n_body))
+    model = compile_model(parse_scene(f"""
+vrsim: 1
+duration: 2.0
+frame_rate: 100
+dt: 0.002
+integrator: {integrator}
+output: {{rate: 10}}
+bodies: [{bodies}]
+"""))
+    plain = Recorder()
+    truth = run(model, make_state(model), plain).state
+    counts = _counting_calls(monkeypatch)
+    rec, seen = Recorder(), []
+    result = run(model, make_state(model), rec, should_stop=lambda: False,
+                 on_frame=lambda s: seen.append(s.step), coarse_callbacks=True)
+    assert counts == [50] * 20  # 2 s of 2 ms steps, a sample every 0.1 s
+    assert seen == [50 * (k + 1) for k in range(20)]
+    assert rec.times == plain.times and result.frames == 200 and result.samples == 21
+    assert state_hash(result.state) == state_hash(truth)
+    counts.clear()
+    run(model, make_state(model), Recorder(), should_stop=lambda: False, on_frame=seen.append)
+    assert counts == [5] * 200  # fine callbacks (the API): one call per frame
+
+
+def test_coarse_callbacks_stop_at_a_frame_and_calls_stay_short(monkeypatch):
+    """Without output every call is cut at whole frames of at most CALL_BODY_STEPS
+    body-steps, so a signal is answered between calls; a stop ends the run there."""
+    from vrsim_cli.loop import CALL_BODY_STEPS
+
+    model = compile_model(parse_scene("vrsim: 1\nduration: 1000\nframe_rate: 30\n"
+                                      "dt: 0.001\nbodies: [" + ", ".join(
+                                          f"{{name: p{i}, mass: 1}}" for i in range(7)) + "]\n"))
+    counts = _counting_calls(monkeypatch)
+    calls = []
+    result = run(model, make_state(model), None, should_stop=lambda: len(calls) >= 4,
+                 on_frame=calls.append, coarse_callbacks=True)
+    spf = model.steps_per_frame
+    assert result.interrupted and len(counts) == 4
+    assert all(c % spf == 0 and c * 7 <= CALL_BODY_STEPS for c in counts)
+    assert result.state.step == sum(counts) and result.frames == sum(counts) // spf
+
+
 def test_render_runs_at_stage_3_with_the_initial_state_and_every_frame():
     model = compile_model(parse_scene("vrsim: 1\nduration: 0.35\nframe_rate: 10\ndt: 0.01\n"
                                       "bodies: [{name: a, mass: 1}]\n"))

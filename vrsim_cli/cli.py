@@ -282,7 +282,8 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
                                    err=True)
                         sys.exit(128 + signals.received)
                 result = run_loop(model, state, writer, realtime=realtime or live,
-                                  should_stop=stop, on_frame=progress, render=frames)
+                                  should_stop=stop, on_frame=progress, render=frames,
+                                  coarse_callbacks=True)
             except SimulationError as exc:
                 failure = exc  # finalise the output up to the last good state, then report
             finally:

@@ -81,6 +81,10 @@ def check_state(model: Model, state: State) -> None:
     check_orientations(model, state)
 
 
+# body-steps per compiled call when a signal check or progress bar waits between calls:
+# ~0.1 s at the slowest kernels' ~0.5 us per body-step (rk4 boxes), ~2e5 per call is
+# still thousands of times the ~20 us a call costs in Python
+CALL_BODY_STEPS = 200_000
 UNIT_TOLERANCE = 1e-9  # |q|^2 - 1: written orientations are normalised to ~1e-15
 
 
@@ -155,7 +159,7 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
         should_stop: Callable[[], bool] | None = None,
         on_frame: Callable[[State], None] | None = None,
         render: Callable[[State], None] | None = None,
-        resume: bool = False) -> RunResult:
+        resume: bool = False, coarse_callbacks: bool = False) -> RunResult:
     """Run `model` from `state` to the end (or until `should_stop()` is true at a frame).
 
     `writer` receives samples; it is not closed here. On a blow-up the last good state is
@@ -172,6 +176,12 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
     `should_stop`); the set-up of a run's first state (kinematic poses at t, attaching the
     observer to its body) is skipped, so running in pieces gives the states of one run,
     bit for bit (the Python API's Simulation.step relies on it).
+
+    `coarse_callbacks`: `should_stop` and `on_frame` need not run at every frame, only
+    between compiled calls (the command line's signal check and progress bar): a scene
+    with nothing else to do per frame then makes one compiled call per output sample,
+    cut at whole frames every CALL_BODY_STEPS body-steps so that a signal is answered
+    within a fraction of a second.
     """
     clock = time.perf_counter
     profile = {"sensors": 0.0, "navigation": 0.0, "dynamics": 0.0, "checks": 0.0,
@@ -197,8 +207,11 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
     # keyframes, drives or parents move bodies: the scene graph stage runs
     animate = model.animation is not None and model.animation.has_motion
     per_step = animate or detect is not None or respond is not None
-    frame_work = (model.inputs is not None or render is not None or realtime
-                  or on_frame is not None or should_stop is not None)
+    callbacks = on_frame is not None or should_stop is not None
+    # sensors are read for the observer only (`sensors.read`): without one, no frame work
+    sensing = model.inputs is not None and model.observer is not None
+    frame_work = (sensing or render is not None or realtime
+                  or (callbacks and not coarse_callbacks))
     if animate:
         profile["scenegraph"] = 0.0
     if animate and not resume:
@@ -286,15 +299,24 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
         with np.errstate(all="ignore"):
             first_frame = state.step // model.steps_per_frame
             if not per_step and not frame_work:  # nothing to do between samples: one
-                while state.step < model.n_steps:  # compiled call per output sample
+                # compiled call per output sample (whole frames of at most CALL_BODY_STEPS
+                # when someone waits for callbacks)
+                cap = model.n_steps if not callbacks else model.steps_per_frame * max(
+                    1, CALL_BODY_STEPS // (model.steps_per_frame * model.n_body))
+                while state.step < model.n_steps:
+                    if should_stop is not None and should_stop():
+                        result.interrupted = True
+                        break
                     to_sample = every - state.step % every if writer is not None else \
                         model.n_steps
-                    state = chunk(state, min(to_sample, model.n_steps - state.step))
+                    state = chunk(state, min(to_sample, model.n_steps - state.step, cap))
                     if state.step % every == 0:
                         sample(state)
+                    if on_frame is not None:
+                        on_frame(state)
                 result.frames = -(-state.step // model.steps_per_frame) - first_frame
             for frame in range(state.step // model.steps_per_frame, model.n_frames):
-                if state.step >= model.n_steps:
+                if state.step >= model.n_steps or result.interrupted:
                     break
                 if should_stop is not None and should_stop():
                     result.interrupted = True
