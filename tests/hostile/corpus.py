@@ -149,6 +149,14 @@ EXTREMES = [1e308, -1e308, 1.7976931348623157e308, 5e-324, -5e-324, 1e-300, 1e-2
             1e-30, 0, -0.0, 1e16, 2 ** 63, -(2 ** 63), 10 ** 400, 1e300, -1]
 
 
+def junk_bytes(n: int) -> bytes:
+    """n random bytes, the same on every run (seeded by n), so that two runs of the corpus
+    (spawn and fork mode, before and after a fix) feed vrsim the same junk."""
+    import random
+
+    return random.Random(f"junk-{n}").randbytes(n)
+
+
 def leaves(node, prefix=()):
     """(path, value) of every node of a JSON-like document (containers too)."""
     yield prefix, node
@@ -435,7 +443,7 @@ def yaml_cases() -> list[Case]:
     cases = [Case("yaml", name, {"scene.yaml": text.encode("utf-8", "surrogatepass")},
                   VALIDATE_RUN) for name, text in texts.items()]
     junk = [bytes(range(256)), b"\xff\xfe" + "vrsim: 1".encode("utf-16-le"), b"\x00" * 1000,
-            b"\xc3\x28", os.urandom(4096), b"vrsim: 1\nduration: 1\nname: \xe9\n"]
+            b"\xc3\x28", junk_bytes(4096), b"vrsim: 1\nduration: 1\nname: \xe9\n"]
     cases += [Case("yaml", f"binary-{i}", {"scene.yaml": data}, VALIDATE_RUN)
               for i, data in enumerate(junk)]
     return cases
@@ -512,7 +520,7 @@ def files_cases() -> list[Case]:
         for kind, files in (("fifo", {"in.x": ("fifo",)}), ("dir", {"in.x": ("dir",)}),
                             ("dev-zero", {"in.x": ("link", "/dev/zero")}),
                             ("dev-null", {"in.x": ("link", "/dev/null")}),
-                            ("empty", {"in.x": b""}), ("junk", {"in.x": os.urandom(2000)}),
+                            ("empty", {"in.x": b""}), ("junk", {"in.x": junk_bytes(2000)}),
                             ("missing", {}), ("loop", {"in.x": ("link", "in.x")}),
                             ("huge", {"in.x": ("sparse", 100 * MB)}),
                             ("header-only", {"in.x": b"t,alpha,beta\n"}),
@@ -573,8 +581,8 @@ def files_cases() -> list[Case]:
         c(f"frames-dir-{kind}", files, VALIDATE_RUN)
     # info and compare on odd files
     for kind, files in (("fifo", {"t.csv": ("fifo",)}), ("dev-zero", {"t.csv": ("link", "/dev/zero")}),
-                        ("dir-empty", {"t.csv": ("dir",)}), ("junk-mcap", {"t.mcap": os.urandom(5000)}),
-                        ("junk-gz", {"t.csv.gz": os.urandom(5000)}),
+                        ("dir-empty", {"t.csv": ("dir",)}), ("junk-mcap", {"t.mcap": junk_bytes(5000)}),
+                        ("junk-gz", {"t.csv.gz": junk_bytes(5000)}),
                         ("gz-bomb", {"t.csv.gz": ("gzbomb", 200 * MB)}),
                         ("huge-csv", {"t.csv": ("bigcsv", 2_000_000)}),
                         ("escape-names", {"t.csv": ("t,entity,px,py,pz,qw,qx,qy,qz,vx,vy,vz,wx,"
