@@ -722,7 +722,9 @@ def spawn_invocation(folder: Path, args: list, timeout: float) -> dict:
     start = time.perf_counter()
     # /usr/bin/time reports the child's own peak RSS; wait4 from this (large) process
     # would report at least this process's size (Linux carries it over through fork)
-    rss_file = Path(tempfile.mkstemp(prefix="rss-", dir=folder.parent.parent)[1])
+    fd, rss_name = tempfile.mkstemp(prefix="rss-", dir=folder.parent.parent)
+    os.close(fd)  # (it leaked one descriptor per invocation)
+    rss_file = Path(rss_name)
     timer = ["/usr/bin/time", "-f", "%M", "-o", str(rss_file)] \
         if os.path.exists("/usr/bin/time") else []
     proc = subprocess.Popen([*timer, sys.executable, "-m", "vrsim_cli", *args], cwd=folder,
