@@ -985,6 +985,24 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.compare:
         return compare_reports(*args.compare)
+    meta = {}
+
+    def on_signal(signum, _frame):
+        # Stop: no new invocation, the running ones killed (those cases are dropped, not
+        # counted), the report written with every case done so far.
+        if not STOP.is_set():
+            print(f"{signal.Signals(signum).name}: stopping, writing the cases done",
+                  flush=True)
+        STOP.set()
+        meta["interrupted"] = signal.Signals(signum).name
+        for pid in list(RUNNING.values()):
+            for kill in (os.killpg, os.kill):
+                try:
+                    kill(pid, signal.SIGKILL)
+                except (ProcessLookupError, PermissionError):
+                    pass
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     cases = build(args.only, args.full)
     for case, key in zip(cases, case_keys(cases)):
         case.key = key
@@ -1002,8 +1020,8 @@ def main(argv=None) -> int:
               "invocations", sum(len(c.commands) for c in cases))
         return 0
     done = []
-    meta = {"mode": "fork" if args.fork else "spawn", "timeout_s": args.timeout,
-            "jobs": args.jobs, "argv": sys.argv[1:] if argv is None else argv}
+    meta.update({"mode": "fork" if args.fork else "spawn", "timeout_s": args.timeout,
+            "jobs": args.jobs, "argv": sys.argv[1:] if argv is None else argv})
     if args.resume:
         earlier = json.loads(args.resume.read_text())
         kept = {c["key"]: c for c in earlier["cases"]}
@@ -1027,24 +1045,10 @@ def main(argv=None) -> int:
     print(f"corpus of {len(cases)} cases against vrsim_cli at {commit}, {meta['mode']} mode"
           + (f" ({len(done)} kept from {args.resume})" if args.resume else ""), flush=True)
 
-    def on_signal(signum, _frame):
-        # Stop: no new invocation, the running ones killed (those cases are dropped, not
-        # counted), the report written with every case done so far.
-        if not STOP.is_set():
-            print(f"{signal.Signals(signum).name}: stopping, writing the cases done",
-                  flush=True)
-        STOP.set()
-        meta["interrupted"] = signal.Signals(signum).name
-        for pid in list(RUNNING.values()):
-            for kill in (os.killpg, os.kill):
-                try:
-                    kill(pid, signal.SIGKILL)
-                except (ProcessLookupError, PermissionError):
-                    pass
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     start = time.perf_counter()
     try:
+        if STOP.is_set():  # a signal while the cases were built: report what was kept
+            cases = []
         with ThreadPoolExecutor(args.jobs) as pool:
             for i, case in enumerate(pool.map(lambda c: run_case(c, root, args.timeout,
                                                                  args.fork), cases), 1):
