@@ -104,9 +104,31 @@ def _checked(mesh, names) -> dict:
 def proxy(mesh, name: str) -> dict:
     """One proxy of `proxies`; the `mesh` itself needs no hull (a flat mesh is fine)."""
     if name == "mesh":
-        return {"vertices": np.asarray(mesh.vertices, float),
-                "faces": np.asarray(mesh.faces, np.int64)}
+        vertices = np.asarray(mesh.vertices, float)
+        faces = np.asarray(mesh.faces, np.int64)
+        # fcl gives garbage contacts (different on every run, NaN at times) for triangles
+        # without an area; they are no surface, so they are dropped
+        faces = faces[has_area(vertices, faces)]
+        if not len(faces):
+            raise ValueError("the mesh has no triangle with an area (the corners of each "
+                             "lie on a line or at a point): it has no surface to collide "
+                             "with")
+        return {"vertices": vertices, "faces": faces}
     return _checked(mesh, (name,))[name]
+
+
+SLIVER = 1e-12  # a triangle thinner than this fraction of its longest edge has no area
+
+
+def has_area(vertices, faces) -> np.ndarray:
+    """(F,) bool: which triangles (F, 3) of `vertices` (V, 3) have an area, i.e. are not
+    slivers whose normal would be rounding noise: |cross| > SLIVER * longest edge^2."""
+    tri = np.asarray(vertices, float)[np.asarray(faces)]
+    edges = tri[:, [1, 2, 0]] - tri
+    with np.errstate(over="ignore", invalid="ignore"):
+        cross = np.linalg.norm(np.cross(edges[:, 0], -edges[:, 2]), axis=1)
+        longest = (edges ** 2).sum(axis=2).max(axis=1)
+        return cross > SLIVER * longest
 
 
 def _proxies(mesh, names) -> dict:
