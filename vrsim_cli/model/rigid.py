@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.eigen import principal_axes
 from vrsim_cli.maths.products import inv3, matmul, norm
 
 from vrsim_cli.errors import Problem
@@ -213,10 +214,10 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
     inv = np.zeros((r, 3, 3))
     if (~kin).any():
         inv[~kin] = inv3(inertia_arr[~kin])
-    moments, axes = np.linalg.eigh(inertia_arr) if r else (np.zeros((0, 3)),
-                                                            np.zeros((0, 3, 3)))
-    flip = np.linalg.det(axes) < 0 if r else np.zeros(0, dtype=bool)
-    axes[flip, :, 2] *= -1.0  # right-handed principal frames
+    # right-handed principal frames, by our Jacobi (LAPACK's last bits depend on the CPU)
+    moments, axes = np.zeros((r, 3)), np.zeros((r, 3, 3))
+    for k in range(r):
+        moments[k], axes[k] = principal_axes(inertia_arr[k])
     R0 = quat_to_matrix(np.reshape(np.array([quat0[i] for i in rot_index]), (r, 4)))
     w0 = np.reshape(np.array(angvel0, dtype=float), (r, 3))
     L0 = np.einsum("rij,rjk,rlk,rl->ri", R0, inertia_arr, R0, w0)
