@@ -55,13 +55,22 @@ VARIANTS["numpy without AVX-512"] = (
     {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR"}, ALL)
 VARIANTS["numpy without AVX2 and AVX-512"] = (
     {"NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"}, ALL)
+# glibc's libm picks FMA/AVX2 variants of sin, cos, exp, pow ... by CPU (ifuncs); this
+# hides those features from glibc only (numpy, OpenBLAS and LLVM read cpuid themselves).
+# Names checked with `ld.so --list-diagnostics` (glibc 2.36): the FMA bit of leaf 1 ECX and
+# the AVX2 and AVX512F bits of leaf 7 EBX go from usable to not.
+GLIBC_NO_FMA = "glibc.cpu.hwcaps=-AVX2,-FMA,-FMA4,-AVX512F"
+VARIANTS["glibc's libm without FMA and AVX2"] = ({"GLIBC_TUNABLES": GLIBC_NO_FMA}, ALL)
+VARIANTS["glibc's libm and numpy without FMA and AVX2"] = (
+    {"GLIBC_TUNABLES": GLIBC_NO_FMA,
+     "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"}, ALL)
 VARIANTS["numba for a generic x86-64"] = ({"NUMBA_CPU_NAME": "generic"}, GENERIC)
 
 
 def _hashes(extra_env: dict, scenes: list[str], cwd) -> dict:
     env = {k: v for k, v in os.environ.items()
            if k not in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "NUMBA_CPU_NAME",
-                        "NUMBA_CPU_FEATURES")}
+                        "NUMBA_CPU_FEATURES", "GLIBC_TUNABLES")}
     env.update(extra_env)
     # a scenario's outputs are relative to the current folder: a temporary one
     proc = subprocess.run([sys.executable, "-c", CHILD, str(SECONDS), *scenes], env=env,
