@@ -30,6 +30,8 @@ from vrsim_cli.model.state import make_state
 from vrsim_cli.scene.spec import parse_scene
 from vrsim_cli.stages.dynamics import motion
 
+from test_rigid import SPRING_BLOWUP
+
 ORDER = {"euler": 1, "symplectic-euler": 1, "verlet": 2, "rk4": 4, "dopri5": 5}
 CAP, SAFETY, FLOOR = 0.05, 10.0, 1e-10  # the documented constants (motion.py)
 
@@ -255,18 +257,9 @@ def test_a_long_free_fall_says_the_body_left_the_numeric_range(invoke, write_sce
     assert out.exists()  # the output up to the last good state
 
 
-RUNAWAY = """
-vrsim: 1
-duration: 100
-frame_rate: 10
-dt: 0.05
-integrator: euler
-gravity: [0, 0, 0]
-bodies:
-  - {name: anchor_ball, type: static}
-  - {name: bob, mass: 0.1, position: [1, 0, 0], forces: [{force: [0, 0, 1e-6]}]}
-springs: [{body: bob, to: anchor_ball, stiffness: 40, rest_length: 0}]
-"""
+# test_rigid's spring blow-up, with a force that never ends: no energy guard
+RUNAWAY = SPRING_BLOWUP.replace("duration: 20", "duration: 100").replace(
+    "position: [1, 0, 0]}", "position: [1, 0, 0], forces: [{force: [0, 0, 1e-6]}]}")
 
 
 def test_a_runaway_is_a_blow_up_with_the_dt_hint(invoke, write_scene, tmp_path):

@@ -302,38 +302,39 @@ def energy(model: Model, state: State):
     m|v|^2/2 + L.omega/2, gravity -m g.x, a spring's k (l - l0)^2/2 split between its two
     bodies. Kinematic and static bodies count 0."""
     kd = _kernels()
-    if state.rot_matrix is None:
-        R, L = np.zeros((0, 3, 3)), np.zeros((0, 3))
-    else:
-        R, L = state.rot_matrix, state.rot_angmom
+    S, RS = _rows(model, state)
     out = np.zeros(model.n_body)
-    S = np.zeros((model.n_body, kd.S_SIZE))
-    S[:, kd.S_POS:kd.S_POS + 3] = state.body_pos
-    S[:, kd.S_VEL:kd.S_VEL + 3] = state.body_vel
-    RS = np.zeros((len(R), kd.RS_SIZE))
-    RS[:, kd.RS_R:kd.RS_R + 9] = np.reshape(R, (-1, 9))
-    RS[:, kd.RS_L:kd.RS_L + 3] = L
     kinetic, spring = kd.body_energy(packed(model), S, RS, out)
     return out, float(kinetic), float(spring)
 
 
 def energy_check(model: Model, state: State, baseline: np.ndarray):
     """The energy guard of `state` against the per-body `baseline` (n,) J, as the
-    compiled run makes it: (-1 or the body whose energy grew most, growth J, bound J)."""
+    compiled run makes it: (-1 or the body whose energy changed most past the bound,
+    change J (< 0: a loss), bound J)."""
     kd = _kernels()
-    R, L = (np.zeros((0, 3, 3)), np.zeros((0, 3))) if state.rot_matrix is None else \
-        (state.rot_matrix, state.rot_angmom)
+    S, RS = _rows(model, state)
+    tau = state.t - (model.rigid.energy_guard_from if model.rigid is not None else 0.0)
+    bad, gain, bound = kd.energy_check(packed(model), S, RS,
+                                       np.ascontiguousarray(baseline, dtype=float),
+                                       np.zeros(model.n_body), tau, model.dt)
+    return int(bad), float(gain), float(bound)
+
+
+def _rows(model: Model, state: State):
+    """The kernels' rows S (n, 13) and RS (r, 12) of `state` (positions, velocities, R, L)."""
+    kd = _kernels()
+    if state.rot_matrix is None:
+        R, L = np.zeros((0, 3, 3)), np.zeros((0, 3))
+    else:
+        R, L = state.rot_matrix, state.rot_angmom
     S = np.zeros((model.n_body, kd.S_SIZE))
     S[:, kd.S_POS:kd.S_POS + 3] = state.body_pos
     S[:, kd.S_VEL:kd.S_VEL + 3] = state.body_vel
     RS = np.zeros((len(R), kd.RS_SIZE))
     RS[:, kd.RS_R:kd.RS_R + 9] = np.reshape(R, (-1, 9))
     RS[:, kd.RS_L:kd.RS_L + 3] = L
-    tau = state.t - (model.rigid.energy_guard_from if model.rigid is not None else 0.0)
-    bad, gain, bound = kd.energy_check(packed(model), S, RS,
-                                       np.ascontiguousarray(baseline, dtype=float),
-                                       np.zeros(model.n_body), tau, model.dt)
-    return int(bad), float(gain), float(bound)
+    return S, RS
 
 
 def _raise_underflow(model: Model, component: int, t: float):
