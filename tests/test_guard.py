@@ -279,3 +279,17 @@ def test_energy_blow_up_message_names_body_time_bound_and_hint(invoke, write_sce
     assert result.exit_code == 1 and "Traceback" not in result.output
     assert "body 'box', t = " in result.stderr and "the energy grew by" in result.stderr
     assert "bound" in result.stderr and "try a smaller dt" in result.stderr
+
+
+def test_impacts_keep_the_guard_unless_they_can_add_energy():
+    # restitution <= 1 (all the schema allows): impacts only take energy away, the guard
+    # stays on; a restitution above 1 (an API user's model) would add energy: off
+    import dataclasses
+
+    from vrsim_cli.model.model import _superelastic
+
+    model = compile_model(parse_scene(ELASTIC_BALL.format(integrator="verlet")))
+    assert model.rigid.energy_guard and not _superelastic(model.response)
+    bouncy = dataclasses.replace(model.response,
+                                 body_restitution=np.array([np.nan, 1.2]))
+    assert _superelastic(bouncy)

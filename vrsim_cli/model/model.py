@@ -269,8 +269,12 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
             from vrsim_cli.model.response import compile_response
             response = compile_response(scene, len(names), _vec3(gravity, dim),
                                         collision.tolerance, problems)
-            if response is not None and rigid is not None and BODY_KINEMATIC in kinds:
-                # a kinematic body that hits others does work on them: energy may grow
+            if response is not None and rigid is not None and (
+                    BODY_KINEMATIC in kinds or _superelastic(response)):
+                # a kinematic body that hits others does work on them, and so would an
+                # impact with restitution > 1 (the schema allows <= 1): energy may grow;
+                # other impacts only take energy away, the guard's bound stays the
+                # integrator's
                 rigid = dataclasses.replace(rigid, energy_guard=False)
         if problems:
             raise InputError(problems)
@@ -425,6 +429,12 @@ def _overwritten_inputs(scene: Scene, output: OutputSpec, shapes) -> list[Proble
             return [scene.problem(where, f"the output would overwrite {format_key_path(key)} "
                                   f"('{scene.get(key)}'), which this scene reads")]
     return []
+
+
+def _superelastic(response) -> bool:
+    """Does any body or pair set a restitution above 1 (impacts that add energy)?"""
+    values = np.concatenate([response.body_restitution, response.pair_restitution])
+    return bool((values[np.isfinite(values)] > 1.0).any())
 
 
 def _start_overlaps(scene: Scene, kinds, pos0, shapes, emit) -> int:
