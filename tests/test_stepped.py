@@ -312,6 +312,18 @@ def test_stacks_stand_still_in_stepped_mode(integrator, heavy):
     assert np.abs(final.body_angvel[dyn]).max() <= 1e-6
 
 
+def _random_shape(rng, b, radius, side, capsule):
+    """Body b's shape in YAML: a sphere, box or capsule in turn, its radius, sides, or
+    radius and length (the sides' range) drawn uniformly from the given (low, high)."""
+    kind = ("sphere", "box", "capsule")[b % 3]
+    if kind == "sphere":
+        return f"{{type: sphere, radius: {float(rng.uniform(*radius))!r}}}"
+    if kind == "box":
+        return f"{{type: box, size: {rng.uniform(*side, 3).tolist()!r}}}"
+    return (f"{{type: capsule, radius: {float(rng.uniform(*capsule))!r}, "
+            f"length: {float(rng.uniform(*side))!r}}}")
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_compiled_detection_matches_the_numpy_narrow_phase(seed):
     """kernels.collide.detect (the stepped step's detection) against the package's numpy
@@ -333,14 +345,7 @@ def test_compiled_detection_matches_the_numpy_narrow_phase(seed):
              "collision: {impacts: stepped}\nbodies:",
              "  - {name: ground, type: static, shape: {type: plane, normal: [0, 1, 0]}}"]
     for b in range(40):
-        kind = ("sphere", "box", "capsule")[b % 3]
-        if kind == "sphere":
-            shape = f"{{type: sphere, radius: {float(rng.uniform(0.05, 0.2))!r}}}"
-        elif kind == "box":
-            shape = f"{{type: box, size: {rng.uniform(0.05, 0.4, 3).tolist()!r}}}"
-        else:
-            shape = (f"{{type: capsule, radius: {float(rng.uniform(0.03, 0.15))!r}, "
-                     f"length: {float(rng.uniform(0.05, 0.4))!r}}}")
+        shape = _random_shape(rng, b, (0.05, 0.2), (0.05, 0.4), (0.03, 0.15))
         pos = [float(rng.uniform(-0.5, 0.5)), float(rng.uniform(0.0, 1.0)),
                float(rng.uniform(-0.5, 0.5))]
         lines.append(f"  - {{name: b{b}, mass: 1, position: {pos!r}, orientation: "
@@ -389,14 +394,7 @@ def _random_scene(rng, bodies=60, planes=4, speed=3.0):
         lines.append(f"  - {{name: p{p}, type: static, position: "
                      f"{(-0.4 * n).tolist()!r}, shape: {{type: plane, normal: {n.tolist()!r}}}}}")
     for b in range(bodies):
-        kind = ("sphere", "box", "capsule")[b % 3]
-        if kind == "sphere":
-            shape = f"{{type: sphere, radius: {float(rng.uniform(0.03, 0.12))!r}}}"
-        elif kind == "box":
-            shape = f"{{type: box, size: {rng.uniform(0.05, 0.25, 3).tolist()!r}}}"
-        else:
-            shape = (f"{{type: capsule, radius: {float(rng.uniform(0.03, 0.1))!r}, "
-                     f"length: {float(rng.uniform(0.05, 0.25))!r}}}")
+        shape = _random_shape(rng, b, (0.03, 0.12), (0.05, 0.25), (0.03, 0.1))
         pos = rng.uniform(-0.6, 0.6, 3).tolist()
         vel = (speed * rng.normal(size=3)).tolist()
         lines.append(f"  - {{name: b{b}, mass: {float(rng.uniform(0.1, 2.0))!r}, position: "

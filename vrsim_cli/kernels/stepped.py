@@ -985,6 +985,21 @@ def has_pair(K, k0, k, a, b):
     return False
 
 
+@kernel(inline="always")
+def _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
+    """Whether grown geom i and geom j make a new candidate pair: j in the scene, the
+    pair once when both grew, a candidate (`kc._candidate`), their bodies without a
+    contact in K yet."""
+    if j == i or gf[j, kc.G_EMIT] > step:
+        return False
+    if grown[int(gf[j, kc.G_BODY])] and j < i:
+        return False  # both grew: once
+    if not kc._candidate(gf, pad, lo, hi, i, j):
+        return False
+    ba, bb = int(gf[i, kc.G_BODY]), int(gf[j, kc.G_BODY])
+    return not has_pair(K, k0, k, min(ba, bb), max(ba, bb))
+
+
 @kernel
 def expand_pairs(gf, lo, hi, pad, step, grown, K, k0, k):
     """Candidate geom pairs of the bodies whose sweep grew (grown (n,) bool) against all
@@ -1047,17 +1062,9 @@ def expand_pairs(gf, lo, hi, pad, step, grown, K, k0, k):
             near[:cnt].sort()
         for e in range(cnt):
             j = near[e]
-            if j == i or gf[j, kc.G_EMIT] > step:
-                continue
-            if grown[int(gf[j, kc.G_BODY])] and j < i:
-                continue  # both grew: once
-            if not kc._candidate(gf, pad, lo, hi, i, j):
-                continue
-            ba, bb = int(gf[i, kc.G_BODY]), int(gf[j, kc.G_BODY])
-            if has_pair(K, k0, k, min(ba, bb), max(ba, bb)):
-                continue
-            P = kc._push_pair(P, m, i, j)
-            m += 1
+            if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
+                P = kc._push_pair(P, m, i, j)
+                m += 1
     return P, m
 
 
@@ -1072,17 +1079,9 @@ def _expand_pairs_all(gf, lo, hi, pad, step, grown, K, k0, k):
         if gf[i, kc.G_EMIT] > step or not grown[int(gf[i, kc.G_BODY])]:
             continue
         for j in range(n_geom):
-            if j == i or gf[j, kc.G_EMIT] > step:
-                continue
-            if grown[int(gf[j, kc.G_BODY])] and j < i:
-                continue  # both grew: once
-            if not kc._candidate(gf, pad, lo, hi, i, j):
-                continue
-            ba, bb = int(gf[i, kc.G_BODY]), int(gf[j, kc.G_BODY])
-            if has_pair(K, k0, k, min(ba, bb), max(ba, bb)):
-                continue
-            P = kc._push_pair(P, m, i, j)
-            m += 1
+            if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
+                P = kc._push_pair(P, m, i, j)
+                m += 1
     return P, m
 
 
