@@ -315,15 +315,14 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
     sep0 = separations(0.0)
     turns = np.array([p in turning for p in pairs])
     arm = np.where(back, np.where(turns, np.maximum(sep0, 0.0), 0.0), -np.inf)
-    deep = np.where(turns, sep0 - cm.tolerance, -np.inf)
-    bracket = _march(separations, sep0, arm, deep, toi, h, mu, cm.tolerance)
+    bracket = _march(separations, sep0, arm, toi, h, mu, cm.tolerance)
     if bracket is None:
         return None
-    sel, level, lo, g_lo, hi, g_hi = bracket
-    return _root(lambda t: float((separations(t, sel) - level).min()), lo, g_lo, hi, g_hi, h)
+    sel, lo, g_lo, hi, g_hi = bracket
+    return _root(lambda t: float(separations(t, sel).min()), lo, g_lo, hi, g_hi, h)
 
 
-def _march(gaps, d0, arm, deep, toi, h, mu, tol):
+def _march(gaps, d0, arm, toi, h, mu, tol):
     """Conservative advancement (Mirtich 1996) along the integrator's path to the first
     overlap of a candidate pair. From t, where every pair taking part is apart (gaps
     d_i > 0), pair i cannot touch before t + max(d_i, tol) / mu_i (mu_i:
@@ -332,39 +331,29 @@ def _march(gaps, d0, arm, deep, toi, h, mu, tol):
     detection's time of impact (found on the step's chord; 0 when it found none); the
     march steps to the earliest of these. A pair takes part once its gap exceeds arm_i
     (-inf: from the start; 0: a pair touching at 0 and leaving, once apart; its gap at 0:
-    a touching pair that neither approached nor left). Until then a pair with a finite
-    deep_i (the touching pair that neither approached nor left, at its gap at 0 minus
-    the tolerance) is an impact when it sinks to deep_i: a body that turns about the
-    point it hit, pressing it in, hits again there.
-    Returns (pairs taking part, their levels, lo, G(lo) > 0, hi, G(hi) <= 0), G = the
-    least d_i - level_i (level 0 once taking part, else deep_i), or None."""
+    a touching pair that neither approached nor left). Returns (pairs taking part, lo,
+    G(lo) > 0, hi, G(hi) <= 0), G their least gap, or None (no overlap within h)."""
     t, d = 0.0, d0
     armed = d0 > arm
     for _ in range(MARCH_STEPS):
-        level = np.where(armed, 0.0, deep)
-        watch = armed | np.isfinite(deep)
-        margin = np.where(watch, d - level, 0.0)
         with np.errstate(divide="ignore"):
-            step = np.where(mu > 0.0, np.maximum(margin, tol) / mu, np.inf)
+            step = np.where(mu > 0.0, np.maximum(np.where(armed, d, 0.0), tol) / mu, np.inf)
         t_next = min(float(np.maximum(t + step, toi).min()), h)
         d_next = gaps(t_next)
-        if (watch & (d_next <= level)).any():
-            sel = np.flatnonzero(watch)
-            return (sel, level[sel], t, float((d - level)[sel].min()), t_next,
-                    float((d_next - level)[sel].min()))
+        if (armed & (d_next <= 0.0)).any():
+            sel = np.flatnonzero(armed)
+            return (sel, t, float(d[sel].min()), t_next, float(d_next[sel].min()))
         armed |= d_next > arm
         t, d = t_next, d_next
         if t >= h:
             return None
     # very slow progress (a pair skimming past within the tolerance): sample the rest
-    level = np.where(armed, 0.0, deep)
-    sel = np.flatnonzero(armed | np.isfinite(deep))
+    sel = np.flatnonzero(armed)
     for j in range(1, LEAVE_SAMPLES + 1):
         t_next = t + (h - t) * j / LEAVE_SAMPLES
-        d_next = gaps(t_next, sel) - level[sel]
+        d_next = gaps(t_next, sel)
         if (d_next <= 0.0).any():
-            return (sel, level[sel], t, float((d - level)[sel].min()), t_next,
-                    float(d_next.min()))
+            return (sel, t, float(d[sel].min()), t_next, float(d_next.min()))
     return None
 
 
