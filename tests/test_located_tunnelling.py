@@ -48,6 +48,8 @@ hemispheres). Checked per case:
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -260,8 +262,13 @@ SCENES = [(kind, eps, plates, k) for kind in ("sphere", "box", "capsule")
 KNOWN = {("capsule", 0.0, False, 10): "a capsule at 805 m/s, eps 0, tunnels",
          ("capsule", 0.0, False, 13): "a capsule's first impact is found 0.1 mm late",
          ("capsule", 0.0, True, 1): "a capsule at 661 m/s, eps 0, tunnels through a plate"}
+# The suite (CI) runs every third scene, the known failures among them (~1/3 of the
+# ~2.5 min of CPU the whole set takes); VRSIM_SLOW_TESTS=1 runs all 1008 cases, as for
+# the closing notes.
+FULL = os.environ.get("VRSIM_SLOW_TESTS") == "1"
+RUN = [p for i, p in enumerate(SCENES) if FULL or i % 3 == 0 or p in KNOWN]
 PARAMS = [pytest.param(*p, marks=pytest.mark.xfail(strict=True, reason=KNOWN[p]))
-          if p in KNOWN else p for p in SCENES]
+          if p in KNOWN else p for p in RUN]
 
 
 @pytest.mark.parametrize("kind, eps, plates, k", PARAMS)
