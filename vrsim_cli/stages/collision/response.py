@@ -359,9 +359,11 @@ def resting(model, start, state, last=None, c=None):
             "body_a", "body_b", "point", "normal", "depth", "toi")))
         cs = _contact_set(model, bodies, c, rows)
         warm = _warm_start(start, sub, model)
-        impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm)
+        kink = np.full((model.n_body, 4), np.nan)
+        impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm,
+                                             (last.body_vel, last.body_angvel), kink)
         dpos += _tangential_drift(model, last, state, bodies, c, rows[
-            np.abs(impulse[rows]).max(axis=1) > 0.0])
+            np.abs(impulse[rows]).max(axis=1) > 0.0], kink)
         dp, dth = solver.correct_positions(bodies, cs, rm.slop, rm.position_iterations)
         dpos += dp
         dtheta += dth
@@ -374,7 +376,7 @@ def resting(model, start, state, last=None, c=None):
     return new, c, impulse
 
 
-def _tangential_drift(model, last, state, bodies, c: Contacts, rows) -> np.ndarray:
+def _tangential_drift(model, last, state, bodies, c: Contacts, rows, kink=None) -> np.ndarray:
     """(n, 3) m: the translation that makes a body held by resting contact move along its
     contact surfaces as its corrected velocity says, not as the free flight did.
 
@@ -383,13 +385,21 @@ def _tangential_drift(model, last, state, bodies, c: Contacts, rows) -> np.ndarr
     g sin(th) h^2 / 2 per step before the resting impulses set its velocity to zero, and
     crept. Here its position along the surfaces is integrated again with the trapezoid of
     its velocity before and after the contact impulses, x = x_last + h (v_last + v) / 2,
-    exact for the constant accelerations of sticking and of sliding. Only the components
-    along the surfaces are replaced: along the normals the penetration pass decides."""
+    exact for the constant accelerations of sticking and of sliding. A body whose slip
+    stopped inside the step (`kink` (n, 4): fraction f of the step and velocity v_f then,
+    NaN elsewhere; solver._patch) has two ramps: x = x_last + f h (v_last + v_f) / 2 +
+    (1 - f) h (v_f + v) / 2. Only the components along the surfaces are replaced: along
+    the normals the penetration pass decides."""
     drift = np.zeros((model.n_body, 3))
     if not len(rows):
         return drift
     h = state.t - last.t
     moved = last.body_pos + (0.5 * h) * (last.body_vel + bodies.vel)
+    if kink is not None and np.isfinite(kink[:, 0]).any():
+        f = np.where(np.isfinite(kink[:, 0]), kink[:, 0], 1.0)[:, None]
+        v_f = np.where(np.isfinite(kink[:, 1:]), kink[:, 1:], bodies.vel)
+        moved = last.body_pos + (0.5 * h) * (f * (last.body_vel + v_f) +
+                                             (1.0 - f) * (v_f + bodies.vel))
     delta = moved - state.body_pos
     for body in np.unique(np.concatenate([c.body_a[rows], c.body_b[rows]])).tolist():
         if bodies.inv_mass[body] <= 0.0:
