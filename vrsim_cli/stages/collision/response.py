@@ -111,8 +111,12 @@ def write_back(model, state, bodies: solver.Bodies, stopped=None, dpos=None, dth
         if stopped is not None:
             L = np.where(stopped[idx, None] & free[:, None], 0.0, L)
         if dtheta is not None and np.abs(dtheta[idx]).max() > 0.0:
-            turn = np.where(free[:, None], dtheta[idx], 0.0)
-            R = matmul(exp_so3(turn), R)
+            # A position correction moves the body, it does not push it: L turns with it
+            # (the body-frame angular momentum is kept), so 1/2 L.I^-1 L, the kinetic
+            # energy, is unchanged; keeping the world L changed it.
+            turn = exp_so3(np.where(free[:, None], dtheta[idx], 0.0))
+            R = matmul(turn, R)
+            L = np.einsum("kij,kj->ki", turn, L)
             quat = quat.copy()
             quat[idx] = quat_from_matrix(R)
         inv = matmul(matmul(R, rigid.rot_inv_inertia), np.swapaxes(R, -1, -2))
@@ -355,6 +359,7 @@ def resting(model, start, state, last=None, c=None):
         rows = rows[~closing]
     dtheta = np.zeros((model.n_body, 3))
     if len(rows):
+        impulse[rows] += _missed_impacts(model, last, bodies, c, rows)
         sub = Contacts(*(getattr(c, f)[rows] for f in (
             "body_a", "body_b", "point", "normal", "depth", "toi")))
         cs = _contact_set(model, bodies, c, rows)
@@ -374,6 +379,32 @@ def resting(model, start, state, last=None, c=None):
     if stopped.any() and model.rigid is not None and model.rigid.n_rot:
         new = _restore_orientation(model, last, new, stopped)
     return new, c, impulse
+
+
+def _missed_impacts(model, last, bodies, c: Contacts, rows) -> np.ndarray:
+    """Impacts the event search did not locate, applied at the step's end with their
+    restitution (`solver.resolve_impacts`) instead of plastically by the resting solver:
+    contacts that penetrate at the step's end and approach faster than rest_speed both
+    now and at `last` (the step's start or its last impact; a body resting under gravity
+    approaches at g dt at the end but not at the start). Seen: a box whose second corner
+    reaches a wall in the step of the first corner's bounce lost 8 % of its energy in
+    that step. Returns the impulses (len(rows), 3) N s on B; changes `bodies`. (The
+    time of impact is lost: the body bounces up to a step late, penetrating; position
+    correction then pushes it out without changing its kinetic energy.)"""
+    rest = model.response.rest_speed
+    out = np.zeros((len(rows), 3))
+    fast = (c.depth[rows] >= 0.0) & (_approach(bodies, c, rows) < -rest) & \
+        (_approach(bodies_of(model, last), c, rows) < -rest)
+    if fast.any():
+        # with every touching contact of the bodies concerned: an impulse at one corner
+        # may drive another into the wall, which then takes its own (the impact rounds)
+        hit = np.unique(np.concatenate([c.body_a[rows[fast]], c.body_b[rows[fast]]]))
+        hit = hit[bodies.inv_mass[hit] > 0.0]
+        near = (c.depth[rows] >= 0.0) & (np.isin(c.body_a[rows], hit) |
+                                         np.isin(c.body_b[rows], hit))
+        out[near] = solver.resolve_impacts(bodies, _contact_set(model, bodies, c, rows[near]),
+                                           rest)
+    return out
 
 
 def _tangential_drift(model, last, state, bodies, c: Contacts, rows, kink=None) -> np.ndarray:
