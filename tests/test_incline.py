@@ -32,6 +32,34 @@ def quat_mul(a, b):
             w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
 
 
+def box_on_slope(rng, th, yaw, size, mu):
+    """(start position (3,) m, orientation quaternion, sampled states) of a box of `size`
+    at rest on a plane tilted by th about z, turned by yaw about the plane's normal, for
+    5 s; mass, dt (10 ms or 1/60 s) and integrator (verlet or rk4) drawn from rng."""
+    mass = float(rng.uniform(0.2, 10.0))
+    dt = float(rng.choice([0.01, 1 / 60]))
+    integrator = str(rng.choice(["verlet", "rk4"]))
+    normal = [-math.sin(th), math.cos(th), 0.0]
+    position = np.array([0.5 * size[1] * x for x in normal])
+    q = quat_mul([math.cos(th / 2), 0.0, 0.0, math.sin(th / 2)],
+                 [math.cos(yaw / 2), 0.0, math.sin(yaw / 2), 0.0])
+    _, states, _ = simulate(f"""
+vrsim: 1
+duration: 5.0
+frame_rate: 10
+dt: {dt!r}
+integrator: {integrator}
+gravity: [0, -9.81, 0]
+collision: {{}}
+bodies:
+  - {{name: slope, type: static, shape: {{type: plane, normal: {normal}}},
+     material: {{friction: {mu!r}}}}}
+  - {{name: box, mass: {mass!r}, position: {position.tolist()}, orientation: {q},
+     shape: {{type: box, size: {size}}}, material: {{friction: {mu!r}}}}}
+""")
+    return position, q, states
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_a_box_that_friction_can_hold_does_not_creep(seed):
     """Random slope 5-60 degrees, mu from 1.05 tan(th) + 0.02 up, box sizes and mass (not
@@ -50,27 +78,7 @@ def test_a_box_that_friction_can_hold_does_not_creep(seed):
         if size[1] * math.tan(th) < 0.8 * extent:
             break
     mu = float(min(1.05 * math.tan(th) + 0.02 + rng.uniform(0.0, 0.5), 5.0))
-    mass = float(rng.uniform(0.2, 10.0))
-    dt = float(rng.choice([0.01, 1 / 60]))
-    integrator = str(rng.choice(["verlet", "rk4"]))
-    normal = [-math.sin(th), math.cos(th), 0.0]
-    position = [0.5 * size[1] * x for x in normal]
-    q = quat_mul([math.cos(th / 2), 0.0, 0.0, math.sin(th / 2)],
-                 [math.cos(yaw / 2), 0.0, math.sin(yaw / 2), 0.0])
-    _, states, _ = simulate(f"""
-vrsim: 1
-duration: 5.0
-frame_rate: 10
-dt: {dt!r}
-integrator: {integrator}
-gravity: [0, -9.81, 0]
-collision: {{}}
-bodies:
-  - {{name: slope, type: static, shape: {{type: plane, normal: {normal}}},
-     material: {{friction: {mu!r}}}}}
-  - {{name: box, mass: {mass!r}, position: {position}, orientation: {q},
-     shape: {{type: box, size: {size}}}, material: {{friction: {mu!r}}}}}
-""")
+    position, _, states = box_on_slope(rng, th, yaw, size, mu)
     moved = max(float(np.linalg.norm(s.body_pos[1] - position)) for s in states)
     assert moved <= 1e-6, (theta, mu, moved)
 
@@ -101,27 +109,7 @@ def test_a_sliding_box_accelerates_at_g_sin_minus_mu_cos_without_turning(seed):
                     0.5 * size[2] / max(abs(math.sin(yaw)), 1e-12))
         if 0.5 * size[1] * mu < 0.8 * chord:
             break
-    mass = float(rng.uniform(0.2, 10.0))
-    dt = float(rng.choice([0.01, 1 / 60]))
-    integrator = str(rng.choice(["verlet", "rk4"]))
-    normal = [-math.sin(th), math.cos(th), 0.0]
-    position = np.array([0.5 * size[1] * x for x in normal])
-    q = quat_mul([math.cos(th / 2), 0.0, 0.0, math.sin(th / 2)],
-                 [math.cos(yaw / 2), 0.0, math.sin(yaw / 2), 0.0])
-    _, states, _ = simulate(f"""
-vrsim: 1
-duration: 5.0
-frame_rate: 10
-dt: {dt!r}
-integrator: {integrator}
-gravity: [0, -9.81, 0]
-collision: {{}}
-bodies:
-  - {{name: slope, type: static, shape: {{type: plane, normal: {normal}}},
-     material: {{friction: {mu!r}}}}}
-  - {{name: box, mass: {mass!r}, position: {position.tolist()}, orientation: {q},
-     shape: {{type: box, size: {size}}}, material: {{friction: {mu!r}}}}}
-""")
+    position, q, states = box_on_slope(rng, th, yaw, size, mu)
     a = 9.81 * (math.sin(th) - mu * math.cos(th))
     down = np.array([-math.cos(th), -math.sin(th), 0.0])
     worst_x = worst_v = worst_turn = 0.0
