@@ -90,10 +90,10 @@ def energy(state, props) -> float:
     return total
 
 
-@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("seed", range(3))
 def test_elastic_bodies_in_a_closed_box_keep_their_energy_for_60_s(seed):
-    """Located impacts (the default mode), restitution 1, mu = 0, 1-2 random cubes (seeds
-    0-2) or spheres and cubes (3) spinning at up to 30 rad/s, 60 s, dt in {1/30 s, 50 ms},
+    """Located impacts (the default mode), restitution 1, mu = 0, 1-2 random cubes
+    spinning at up to 30 rad/s, 60 s, dt in {1/30 s, 50 ms},
     verlet or rk4: the kinetic energy at every frame equals the first to 1e-9 relative
     (the issue's bound). Fast spin and long steps make a second corner reach a wall in
     the step of the first one's bounce (main lost 47 % and 23 % of the energy in seeds 0
@@ -102,7 +102,7 @@ def test_elastic_bodies_in_a_closed_box_keep_their_energy_for_60_s(seed):
     dt = float(rng.choice([1 / 30, 0.05]))
     integrator = str(rng.choice(["verlet", "rk4"]))
     states, props = closed_box(rng, int(rng.integers(1, 3)), 1.0, "located", dt, integrator,
-                               spin=30.0, cubes=seed < 3)
+                               spin=30.0, cubes=True)
     e0 = energy(states[0], props)
     worst = max(abs(energy(s, props) - e0) for s in states) / e0
     assert states[-1].t == pytest.approx(60.0)
