@@ -352,7 +352,7 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
                 # compiled call per output sample (whole frames of at most CALL_BODY_STEPS
                 # when someone waits for callbacks)
                 cap = model.n_steps if not callbacks else model.steps_per_frame * max(
-                    1, CALL_BODY_STEPS // (model.steps_per_frame * model.n_body))
+                    1, CALL_BODY_STEPS // (model.steps_per_frame * max(1, model.n_body)))
                 while state.step < model.n_steps:
                     if should_stop is not None and should_stop():
                         result.interrupted = True
