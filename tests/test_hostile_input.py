@@ -471,3 +471,20 @@ def test_vectors_at_the_ends_of_the_float_range_keep_their_direction(write_scene
     half = 0.5 ** 0.5  # 90 degrees about x; 1e-15 allows the round-off of the normalisation
     assert tracks["a"].quat[0] == pytest.approx([half, half, 0, 0], abs=1e-15)
     assert tracks["e.0000"].vel[0] == pytest.approx([1, 0, 0], abs=1e-15)
+
+
+@pytest.mark.xfail(strict=True, raises=ZeroDivisionError, reason=(
+    "loop.py (not this branch's file): `CALL_BODY_STEPS // (model.steps_per_frame * "
+    "model.n_body)` divides by zero when the scene has no bodies (a7ac87e); max(1, n_body) "
+    "fixes it. strict: once fixed, this test passes and the marker must go"))
+@pytest.mark.parametrize("extra", ["", "-q", "-o out.csv"])
+def test_a_scene_with_nothing_to_simulate_runs(write_scene, invoke, tmp_path, monkeypatch,
+                                               extra):
+    """Found by the hostile corpus (tests/hostile/corpus.py, yaml: bom, crlf, snippet-\\ufeff,
+    value-0x1F: scenes that are `vrsim: 1, duration: ...` and nothing else): `validate`
+    accepts them, so `run` must run them (exit 0, an empty trajectory), not crash."""
+    monkeypatch.chdir(tmp_path)
+    scene = write_scene("vrsim: 1\nduration: 0.05\n")
+    assert invoke("validate", scene).exit_code == 0
+    result = invoke("run", scene, *extra.split())
+    assert result.exit_code == 0, result.output

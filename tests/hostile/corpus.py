@@ -33,6 +33,7 @@ runs the schema-driven generator in CI.
 from __future__ import annotations
 
 import argparse
+import base64
 import copy
 import json
 import math
@@ -44,6 +45,7 @@ import struct
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -149,6 +151,14 @@ EXTREMES = [1e308, -1e308, 1.7976931348623157e308, 5e-324, -5e-324, 1e-300, 1e-2
             1e-30, 0, -0.0, 1e16, 2 ** 63, -(2 ** 63), 10 ** 400, 1e300, -1]
 
 
+def junk_bytes(n: int) -> bytes:
+    """n random bytes, the same on every run (seeded by n), so that two runs of the corpus
+    (spawn and fork mode, before and after a fix) feed vrsim the same junk."""
+    import random
+
+    return random.Random(f"junk-{n}").randbytes(n)
+
+
 def leaves(node, prefix=()):
     """(path, value) of every node of a JSON-like document (containers too)."""
     yield prefix, node
@@ -184,6 +194,8 @@ class Case:
     commands: list  # argument lists (after `vrsim`); "{d}" is the case folder
     allowed: tuple = ()  # per command, the exit codes allowed (default by command)
     results: list = field(default_factory=list)
+    complete: bool = False  # every command ran (not cut short by SIGINT/SIGTERM)
+    key: str = ""  # unique in the corpus (see case_keys)
 
 
 RUN = ["run", "scene.yaml", "-q"]
@@ -435,7 +447,7 @@ def yaml_cases() -> list[Case]:
     cases = [Case("yaml", name, {"scene.yaml": text.encode("utf-8", "surrogatepass")},
                   VALIDATE_RUN) for name, text in texts.items()]
     junk = [bytes(range(256)), b"\xff\xfe" + "vrsim: 1".encode("utf-16-le"), b"\x00" * 1000,
-            b"\xc3\x28", os.urandom(4096), b"vrsim: 1\nduration: 1\nname: \xe9\n"]
+            b"\xc3\x28", junk_bytes(4096), b"vrsim: 1\nduration: 1\nname: \xe9\n"]
     cases += [Case("yaml", f"binary-{i}", {"scene.yaml": data}, VALIDATE_RUN)
               for i, data in enumerate(junk)]
     return cases
@@ -512,7 +524,7 @@ def files_cases() -> list[Case]:
         for kind, files in (("fifo", {"in.x": ("fifo",)}), ("dir", {"in.x": ("dir",)}),
                             ("dev-zero", {"in.x": ("link", "/dev/zero")}),
                             ("dev-null", {"in.x": ("link", "/dev/null")}),
-                            ("empty", {"in.x": b""}), ("junk", {"in.x": os.urandom(2000)}),
+                            ("empty", {"in.x": b""}), ("junk", {"in.x": junk_bytes(2000)}),
                             ("missing", {}), ("loop", {"in.x": ("link", "in.x")}),
                             ("huge", {"in.x": ("sparse", 100 * MB)}),
                             ("header-only", {"in.x": b"t,alpha,beta\n"}),
@@ -573,8 +585,8 @@ def files_cases() -> list[Case]:
         c(f"frames-dir-{kind}", files, VALIDATE_RUN)
     # info and compare on odd files
     for kind, files in (("fifo", {"t.csv": ("fifo",)}), ("dev-zero", {"t.csv": ("link", "/dev/zero")}),
-                        ("dir-empty", {"t.csv": ("dir",)}), ("junk-mcap", {"t.mcap": os.urandom(5000)}),
-                        ("junk-gz", {"t.csv.gz": os.urandom(5000)}),
+                        ("dir-empty", {"t.csv": ("dir",)}), ("junk-mcap", {"t.mcap": junk_bytes(5000)}),
+                        ("junk-gz", {"t.csv.gz": junk_bytes(5000)}),
                         ("gz-bomb", {"t.csv.gz": ("gzbomb", 200 * MB)}),
                         ("huge-csv", {"t.csv": ("bigcsv", 2_000_000)}),
                         ("escape-names", {"t.csv": ("t,entity,px,py,pz,qw,qx,qy,qz,vx,vy,vz,wx,"
@@ -694,23 +706,31 @@ def materialise(folder: Path, files: dict) -> None:
 
 
 SNAPSHOT: Path | None = None  # a copy of vrsim_cli taken at start (see main)
+STOP = threading.Event()  # set on SIGINT/SIGTERM: no new invocation starts
+RUNNING: dict = {}  # thread id -> process group of the invocation it waits for
 
 
-def run_invocation(folder: Path, args: list, timeout: float) -> dict:
-    """One `vrsim ARGS` in `folder` as a real process: exit code, time, peak RSS (MB),
-    traceback, hang."""
+def child_env() -> dict:
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
     if SNAPSHOT is not None:  # the code as it was when the corpus started, edits or not
         env["PYTHONPATH"] = str(SNAPSHOT)
+    return env
+
+
+def spawn_invocation(folder: Path, args: list, timeout: float) -> dict:
+    """One `python -m vrsim_cli ARGS` in `folder` as a new process."""
     start = time.perf_counter()
     # /usr/bin/time reports the child's own peak RSS; wait4 from this (large) process
     # would report at least this process's size (Linux carries it over through fork)
-    rss_file = Path(tempfile.mkstemp(prefix="rss-", dir=folder.parent.parent)[1])
+    fd, rss_name = tempfile.mkstemp(prefix="rss-", dir=folder.parent.parent)
+    os.close(fd)  # (it leaked one descriptor per invocation)
+    rss_file = Path(rss_name)
     timer = ["/usr/bin/time", "-f", "%M", "-o", str(rss_file)] \
         if os.path.exists("/usr/bin/time") else []
-    proc = subprocess.Popen([*timer, sys.executable, "-m", "vrsim_cli", *args], cwd=folder, env=env,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+    proc = subprocess.Popen([*timer, sys.executable, "-m", "vrsim_cli", *args], cwd=folder,
+                            env=child_env(), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, start_new_session=True)
+    RUNNING[threading.get_ident()] = proc.pid
     hang = False
     try:
         out, err = proc.communicate(timeout=timeout)
@@ -718,6 +738,8 @@ def run_invocation(folder: Path, args: list, timeout: float) -> dict:
         hang = True
         os.killpg(proc.pid, signal.SIGKILL)
         out, err = proc.communicate()
+    finally:
+        RUNNING.pop(threading.get_ident(), None)
     wall = time.perf_counter() - start
     rss = None
     try:
@@ -730,13 +752,85 @@ def run_invocation(folder: Path, args: list, timeout: float) -> dict:
         if "terminated by signal" in text:
             code = -int(text.split("terminated by signal")[1].split()[0].strip("\n"))
     rss_file.unlink(missing_ok=True)
-    return {"args": args, "code": code, "wall_s": round(wall, 3), "hang": hang,
-            "traceback": b"Traceback (most recent call last)" in err,
-            "stderr": err[-2000:].decode("utf-8", "replace"),
+    return {"code": code, "wall_s": round(wall, 3), "hang": hang, "err": err,
             "stdout_bytes": len(out), "rss_mb": rss}
 
 
-def run_case(case: Case, root: Path, timeout: float) -> Case:
+class ForkServer:
+    """A tests/hostile/forkserver.py process (one per worker thread): it has imported what
+    an invocation imports and forks a child per invocation (see that file)."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        self.proc = None
+        self.info = None
+
+    def start(self) -> None:
+        log = open(self.root / f"forkserver-{threading.get_ident()}.log", "ab")
+        self.proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name(
+            "forkserver.py"))], cwd=self.root, env=child_env(), stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE, stderr=log, start_new_session=True)
+        log.close()
+        line = self.proc.stdout.readline()
+        if not line:
+            raise RuntimeError(f"the fork server did not start: see {log.name}")
+        self.info = json.loads(line)
+
+    def run(self, folder: Path, args: list, timeout: float) -> dict:
+        if self.proc is None or self.proc.poll() is not None:
+            self.start()
+        request = json.dumps({"cwd": str(folder), "args": args, "timeout": timeout})
+        self.proc.stdin.write(request.encode() + b"\n")
+        self.proc.stdin.flush()
+        line = self.proc.stdout.readline()  # {"pid": the child's}, then the answer
+        if line:
+            RUNNING[threading.get_ident()] = json.loads(line)["pid"]
+            line = self.proc.stdout.readline()
+            RUNNING.pop(threading.get_ident(), None)
+        if not line:  # the server died (it never runs vrsim code itself): say so, respawn
+            self.proc.wait()
+            raise RuntimeError(f"fork server died with {self.proc.returncode}")
+        answer = json.loads(line)
+        answer["err"] = base64.b64decode(answer.pop("stderr_b64"))
+        return answer
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.stdin.close()
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+
+SERVERS: dict = {}  # thread id -> ForkServer (fork mode)
+
+
+def fork_invocation(folder: Path, args: list, timeout: float) -> dict:
+    server = SERVERS.get(threading.get_ident())
+    if server is None:
+        server = SERVERS[threading.get_ident()] = ForkServer(folder.parent.parent.parent)
+    try:
+        return server.run(folder, args, timeout)
+    except RuntimeError as exc:  # counted apart, then the invocation is run by spawn
+        result = spawn_invocation(folder, args, timeout)
+        result["fallback"] = str(exc)
+        return result
+
+
+def run_invocation(folder: Path, args: list, timeout: float, fork: bool = False) -> dict:
+    """One `vrsim ARGS` in `folder`, spawned or forked: exit code, time, peak RSS (MB),
+    traceback, hang."""
+    raw = (fork_invocation if fork else spawn_invocation)(folder, args, timeout)
+    err = raw.pop("err")
+    return {"args": args, **raw, "traceback": b"Traceback (most recent call last)" in err,
+            "stderr": err[-2000:].decode("utf-8", "replace")}
+
+
+def run_case(case: Case, root: Path, timeout: float, fork: bool = False) -> Case:
+    if STOP.is_set():
+        return case
     folder = Path(tempfile.mkdtemp(prefix="case-", dir=root / "cases"))
     work = folder / "w"
     work.mkdir()
@@ -744,7 +838,13 @@ def run_case(case: Case, root: Path, timeout: float) -> Case:
         materialise(work, case.files)
         before = sorted(p.name for p in folder.iterdir())
         for args in case.commands:
-            result = run_invocation(work, args, timeout)
+            if STOP.is_set():
+                case.results = []  # a case is reported whole or not at all
+                return case
+            result = run_invocation(work, args, timeout, fork)
+            if STOP.is_set():  # killed by the corpus's own signal handler, not a finding
+                case.results = []
+                return case
             command = args[0]
             result["allowed"] = list(ALLOWED.get(command, (0, 1, 2)))
             result["wrong_code"] = not result["hang"] and result["code"] not in result["allowed"]
@@ -760,6 +860,7 @@ def run_case(case: Case, root: Path, timeout: float) -> Case:
                     except OSError:
                         pass
             case.results.append(result)
+        case.complete = True
     finally:
         for p in folder.rglob("*"):
             try:
@@ -792,6 +893,74 @@ def build(only=None, full=False) -> list[Case]:
     return cases
 
 
+def case_keys(cases) -> list[str]:
+    """A key per case, unique (a name can repeat: the occurrence is counted)."""
+    seen, keys = {}, []
+    for c in cases:
+        base = f"{c['category'] if isinstance(c, dict) else c.category}:" \
+               f"{c['name'] if isinstance(c, dict) else c.name}"
+        seen[base] = seen.get(base, 0) + 1
+        keys.append(f"{base}#{seen[base]}")
+    return keys
+
+
+def sample(cases: list[Case], n: int, seed: int = 19) -> list[Case]:
+    """About n cases, the same number from each category (all of a smaller one), seeded."""
+    import random
+
+    by = {}
+    for c in cases:
+        by.setdefault(c.category, []).append(c)
+    per = math.ceil(n / max(1, len(by)))
+    keep = set()
+    for category, members in by.items():
+        keep |= {id(c) for c in random.Random(f"{seed}-{category}").sample(
+            members, min(per, len(members)))}
+    return [c for c in cases if id(c) in keep]
+
+
+def write_report(path: Path, done: list, meta: dict) -> dict:
+    summary = summarise(done)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps({**meta, "summary": summary, "cases": [
+        {"category": c.category, "name": c.name, "key": c.key, "results": c.results}
+        for c in done]}, indent=1, default=str))
+    os.replace(tmp, path)  # a report is whole or the previous one
+    return summary
+
+
+def compare_reports(a: Path, b: Path) -> int:
+    """Per invocation of the cases both reports ran: do exit code, traceback, hang,
+    half-written and outside agree? Prints the disagreements and the RSS of both."""
+    ra, rb = (json.loads(Path(p).read_text()) for p in (a, b))
+    cases_b = {c["key"]: c for c in rb["cases"]}
+    keys = ("code", "traceback", "hang", "half_written", "outside", "wrong_code", "nan_output")
+    total = agree = 0
+    rss = []
+    for ca in ra["cases"]:
+        cb = cases_b.get(ca["key"])
+        if cb is None:
+            continue
+        for x, y in zip(ca["results"], cb["results"]):
+            total += 1
+            diff = {k: (x[k], y[k]) for k in keys if bool(x[k]) != bool(y[k]) or
+                    (k == "code" and x[k] != y[k])}
+            rss.append((x.get("rss_mb") or 0, y.get("rss_mb") or 0))
+            if diff:
+                print(f"DIFFER {ca['key']} | {' '.join(map(str, x['args']))}: {diff}\n"
+                      f"  A: {x['stderr'].strip()[-300:]!r}\n  B: {y['stderr'].strip()[-300:]!r}")
+            else:
+                agree += 1
+    print(f"{agree} of {total} invocations agree on exit code, traceback, hang, half-written, "
+          f"outside, wrong code and NaN output")
+    if rss:
+        print(f"peak RSS (MB): A max {max(r[0] for r in rss)}, median "
+              f"{sorted(r[0] for r in rss)[len(rss) // 2]}; B max {max(r[1] for r in rss)}, "
+              f"median {sorted(r[1] for r in rss)[len(rss) // 2]}")
+    return 0 if agree == total else 1
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=2)
@@ -799,14 +968,48 @@ def main(argv=None) -> int:
     parser.add_argument("--only", nargs="*")
     parser.add_argument("--limit", type=int)
     parser.add_argument("--match", help="only cases whose name contains this")
-    parser.add_argument("--report", type=Path)
+    parser.add_argument("--sample", type=int, help="about N cases, as many from each category "
+                        "(seeded)")
+    parser.add_argument("--report", type=Path, help="written every 100 cases and at the end, "
+                        "also after SIGINT/SIGTERM (with the cases done)")
+    parser.add_argument("--resume", type=Path, help="an earlier report: its complete cases are "
+                        "kept, not run again")
     parser.add_argument("--list", action="store_true")
     parser.add_argument("--full", action="store_true", help="every generated case, not a "
                         "sample of the types and numbers categories")
+    parser.add_argument("--fork", action="store_true", help="fork each invocation from a "
+                        "server that has imported vrsim (tests/hostile/forkserver.py) instead "
+                        "of spawning `python -m vrsim_cli`: same checks, ~10x faster")
+    parser.add_argument("--compare", nargs=2, type=Path, metavar=("A", "B"),
+                        help="compare two reports invocation by invocation, run nothing")
     args = parser.parse_args(argv)
+    if args.compare:
+        return compare_reports(*args.compare)
+    meta = {}
+
+    def on_signal(signum, _frame):
+        # Stop: no new invocation, the running ones killed (those cases are dropped, not
+        # counted), the report written with every case done so far.
+        if not STOP.is_set():
+            print(f"{signal.Signals(signum).name}: stopping, writing the cases done",
+                  flush=True)
+        STOP.set()
+        meta["interrupted"] = signal.Signals(signum).name
+        for pid in list(RUNNING.values()):
+            for kill in (os.killpg, os.kill):
+                try:
+                    kill(pid, signal.SIGKILL)
+                except (ProcessLookupError, PermissionError):
+                    pass
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     cases = build(args.only, args.full)
+    for case, key in zip(cases, case_keys(cases)):
+        case.key = key
     if args.match:
         cases = [c for c in cases if args.match in c.name]
+    if args.sample:
+        cases = sample(cases, args.sample)
     if args.limit:
         cases = cases[:args.limit]
     if args.list:
@@ -816,6 +1019,20 @@ def main(argv=None) -> int:
         print(json.dumps(counts, indent=2), "total", len(cases),
               "invocations", sum(len(c.commands) for c in cases))
         return 0
+    done = []
+    meta.update({"mode": "fork" if args.fork else "spawn", "timeout_s": args.timeout,
+            "jobs": args.jobs, "argv": sys.argv[1:] if argv is None else argv})
+    if args.resume:
+        earlier = json.loads(args.resume.read_text())
+        kept = {c["key"]: c for c in earlier["cases"]}
+        for case in cases:
+            if case.key in kept:
+                case.results = kept[case.key]["results"]
+                case.complete = True
+                done.append(case)
+        cases = [c for c in cases if not c.complete]
+        meta["resumed"] = {"from": str(args.resume), "cases": len(done),
+                           "commit": earlier.get("commit")}
     root = Path(tempfile.mkdtemp(prefix="vrsim-corpus-"))
     global SNAPSHOT
     SNAPSHOT = root / "snapshot"
@@ -824,13 +1041,19 @@ def main(argv=None) -> int:
     (root / "cases").mkdir()
     commit = subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty"],
                             capture_output=True, text=True).stdout.strip()
-    print(f"corpus of {len(cases)} cases against vrsim_cli at {commit}", flush=True)
+    meta["commit"] = commit
+    print(f"corpus of {len(cases)} cases against vrsim_cli at {commit}, {meta['mode']} mode"
+          + (f" ({len(done)} kept from {args.resume})" if args.resume else ""), flush=True)
+
     start = time.perf_counter()
-    done = []
     try:
+        if STOP.is_set():  # a signal while the cases were built: report what was kept
+            cases = []
         with ThreadPoolExecutor(args.jobs) as pool:
-            for i, case in enumerate(pool.map(lambda c: run_case(c, root, args.timeout),
-                                              cases), 1):
+            for i, case in enumerate(pool.map(lambda c: run_case(c, root, args.timeout,
+                                                                 args.fork), cases), 1):
+                if not case.complete:
+                    continue
                 done.append(case)
                 bad = [r for r in case.results if r["traceback"] or r["hang"] or
                        r["wrong_code"] or r["half_written"] or r["outside"]]
@@ -846,14 +1069,23 @@ def main(argv=None) -> int:
                           [:400], flush=True)
                 elif i % 100 == 0:
                     print(f"[{i}/{len(cases)}] {time.perf_counter() - start:.0f} s", flush=True)
+                if i % 100 == 0 and args.report:
+                    write_report(args.report, done, {**meta, "partial": True})
     finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        for server in SERVERS.values():
+            meta.setdefault("fork_servers", []).append(server.info)
+            server.stop()
         shutil.rmtree(root, ignore_errors=True)
-    summary = summarise(done)
+        meta["wall_s"] = round(time.perf_counter() - start, 1)
+        summary = summarise(done)
+        if args.report:
+            write_report(args.report, done, meta)
     print(json.dumps(summary, indent=2))
-    if args.report:
-        args.report.write_text(json.dumps({"summary": summary, "cases": [
-            {"category": c.category, "name": c.name, "results": c.results} for c in done]},
-            indent=1, default=str))
+    if STOP.is_set():
+        print(f"interrupted: {len(done)} cases reported", flush=True)
+        return 128 + {"SIGINT": 2, "SIGTERM": 15}[meta["interrupted"]]
     bad = summary["total"]
     return 1 if bad["tracebacks"] or bad["hangs"] or bad["wrong_exit_codes"] or \
         bad["half_written"] or bad["outside"] else 0
@@ -871,6 +1103,7 @@ def summarise(cases: list[Case]) -> dict:
             s["cases"] += 1
             for r in case.results:
                 s["invocations"] += 1
+                s["fallbacks"] = s.get("fallbacks", 0) + bool(r.get("fallback"))
                 s["tracebacks"] += r["traceback"]
                 s["hangs"] += r["hang"]
                 s["wrong_exit_codes"] += r["wrong_code"]
