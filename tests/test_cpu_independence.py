@@ -55,13 +55,60 @@ VARIANTS["numpy without AVX-512"] = (
     {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR"}, ALL)
 VARIANTS["numpy without AVX2 and AVX-512"] = (
     {"NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"}, ALL)
+# glibc's libm picks FMA/AVX2 variants of sin, cos, exp, pow ... by CPU (ifuncs); this
+# hides those features from glibc only (numpy, OpenBLAS and LLVM read cpuid themselves).
+# Names checked with `ld.so --list-diagnostics` (glibc 2.36): the FMA bit of leaf 1 ECX and
+# the AVX2 and AVX512F bits of leaf 7 EBX go from usable to not.
+GLIBC_NO_FMA = "glibc.cpu.hwcaps=-AVX2,-FMA,-FMA4,-AVX512F"
+VARIANTS["glibc's libm without FMA and AVX2"] = ({"GLIBC_TUNABLES": GLIBC_NO_FMA}, ALL)
+VARIANTS["glibc's libm and numpy without FMA and AVX2"] = (
+    {"GLIBC_TUNABLES": GLIBC_NO_FMA,
+     "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"}, ALL)
 VARIANTS["numba for a generic x86-64"] = ({"NUMBA_CPU_NAME": "generic"}, GENERIC)
+
+
+MODEL_CHILD = r"""
+import hashlib, json, sys
+import numpy as np
+from vrsim_cli.model.model import compile_model
+from vrsim_cli.scene.spec import load_scene
+out = {}
+for path in sys.argv[1:]:
+    model = compile_model(load_scene(path))
+    h = hashlib.sha256()
+    for part in (model, model.rigid):
+        for name, value in sorted(vars(part).items() if part is not None else []):
+            if isinstance(value, np.ndarray) and value.dtype.kind in "fiub":
+                h.update(name.encode() + np.ascontiguousarray(value).tobytes())
+    out[path] = h.hexdigest()
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or os.uname().machine != "x86_64",
+                    reason="GLIBC_TUNABLES names x86-64 features")
+def test_every_compiled_model_is_bit_identical_without_fma_in_libm(tmp_path):
+    """Every array of every scenario's compiled model (initial state, emitted particles'
+    launch velocities, inertia and principal axes, ...) with glibc's libm variants
+    without FMA: the whole run is not needed to see a libm call at compile. Before
+    maths/trig.py, the fountain's launch directions (numpy's sin and cos -> libm)
+    differed here, and its final state after 4 s."""
+    def run(extra):
+        env = {k: v for k, v in os.environ.items() if k != "GLIBC_TUNABLES"}
+        env.update(extra)
+        proc = subprocess.run([sys.executable, "-c", MODEL_CHILD, *ALL], env=env,
+                              capture_output=True, text=True, timeout=600, cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return json.loads(proc.stdout.splitlines()[-1])
+
+    plain, no_fma = run({}), run({"GLIBC_TUNABLES": GLIBC_NO_FMA})
+    assert plain == no_fma, [os.path.basename(k) for k in plain if plain[k] != no_fma[k]]
 
 
 def _hashes(extra_env: dict, scenes: list[str], cwd) -> dict:
     env = {k: v for k, v in os.environ.items()
            if k not in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "NUMBA_CPU_NAME",
-                        "NUMBA_CPU_FEATURES")}
+                        "NUMBA_CPU_FEATURES", "GLIBC_TUNABLES")}
     env.update(extra_env)
     # a scenario's outputs are relative to the current folder: a temporary one
     proc = subprocess.run([sys.executable, "-c", CHILD, str(SECONDS), *scenes], env=env,

@@ -473,10 +473,6 @@ def test_vectors_at_the_ends_of_the_float_range_keep_their_direction(write_scene
     assert tracks["e.0000"].vel[0] == pytest.approx([1, 0, 0], abs=1e-15)
 
 
-@pytest.mark.xfail(strict=True, raises=ZeroDivisionError, reason=(
-    "loop.py (not this branch's file): `CALL_BODY_STEPS // (model.steps_per_frame * "
-    "model.n_body)` divides by zero when the scene has no bodies (a7ac87e); max(1, n_body) "
-    "fixes it. strict: once fixed, this test passes and the marker must go"))
 @pytest.mark.parametrize("extra", ["", "-q", "-o out.csv"])
 def test_a_scene_with_nothing_to_simulate_runs(write_scene, invoke, tmp_path, monkeypatch,
                                                extra):

@@ -312,6 +312,18 @@ def test_stacks_stand_still_in_stepped_mode(integrator, heavy):
     assert np.abs(final.body_angvel[dyn]).max() <= 1e-6
 
 
+def _random_shape(rng, b, radius, side, capsule):
+    """Body b's shape in YAML: a sphere, box or capsule in turn, its radius, sides, or
+    radius and length (the sides' range) drawn uniformly from the given (low, high)."""
+    kind = ("sphere", "box", "capsule")[b % 3]
+    if kind == "sphere":
+        return f"{{type: sphere, radius: {float(rng.uniform(*radius))!r}}}"
+    if kind == "box":
+        return f"{{type: box, size: {rng.uniform(*side, 3).tolist()!r}}}"
+    return (f"{{type: capsule, radius: {float(rng.uniform(*capsule))!r}, "
+            f"length: {float(rng.uniform(*side))!r}}}")
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_compiled_detection_matches_the_numpy_narrow_phase(seed):
     """kernels.collide.detect (the stepped step's detection) against the package's numpy
@@ -333,14 +345,7 @@ def test_compiled_detection_matches_the_numpy_narrow_phase(seed):
              "collision: {impacts: stepped}\nbodies:",
              "  - {name: ground, type: static, shape: {type: plane, normal: [0, 1, 0]}}"]
     for b in range(40):
-        kind = ("sphere", "box", "capsule")[b % 3]
-        if kind == "sphere":
-            shape = f"{{type: sphere, radius: {float(rng.uniform(0.05, 0.2))!r}}}"
-        elif kind == "box":
-            shape = f"{{type: box, size: {rng.uniform(0.05, 0.4, 3).tolist()!r}}}"
-        else:
-            shape = (f"{{type: capsule, radius: {float(rng.uniform(0.03, 0.15))!r}, "
-                     f"length: {float(rng.uniform(0.05, 0.4))!r}}}")
+        shape = _random_shape(rng, b, (0.05, 0.2), (0.05, 0.4), (0.03, 0.15))
         pos = [float(rng.uniform(-0.5, 0.5)), float(rng.uniform(0.0, 1.0)),
                float(rng.uniform(-0.5, 0.5))]
         lines.append(f"  - {{name: b{b}, mass: 1, position: {pos!r}, orientation: "
@@ -370,3 +375,182 @@ def test_compiled_detection_matches_the_numpy_narrow_phase(seed):
     for key in want:
         assert got[key].shape == want[key].shape, key
         assert np.abs(got[key] - want[key]).max() <= 1e-9, (key, got[key], want[key])
+
+
+# ----------------------------------------------------------------------------- speed-ups
+# The stepped step's speed-ups change no result: each against the plain version it
+# replaced, bit for bit.
+
+
+def _random_scene(rng, bodies=60, planes=4, speed=3.0):
+    """A pile of spheres, boxes and capsules at random poses and velocities in a 1.2 m
+    cube, with `planes` static planes at random tilts cutting through it."""
+    lines = ["vrsim: 1\nduration: 0.05\nframe_rate: 100\ndt: 0.01\n"
+             "integrator: symplectic-euler\ngravity: [0, -9.81, 0]\n"
+             "collision: {impacts: stepped}\nbodies:"]
+    for p in range(planes):
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        lines.append(f"  - {{name: p{p}, type: static, position: "
+                     f"{(-0.4 * n).tolist()!r}, shape: {{type: plane, normal: {n.tolist()!r}}}}}")
+    for b in range(bodies):
+        shape = _random_shape(rng, b, (0.03, 0.12), (0.05, 0.25), (0.03, 0.1))
+        pos = rng.uniform(-0.6, 0.6, 3).tolist()
+        vel = (speed * rng.normal(size=3)).tolist()
+        lines.append(f"  - {{name: b{b}, mass: {float(rng.uniform(0.1, 2.0))!r}, position: "
+                     f"{pos!r}, velocity: {vel!r}, orientation: {_unit_quat(rng).tolist()!r}, "
+                     f"shape: {shape}}}")
+    return "\n".join(lines) + "\n"
+
+
+def _kernel_inputs(text, steps=3):
+    """(model, tables, S, RS) of `text` after `steps` stepped steps."""
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import parse_scene
+    from vrsim_cli.stages.collision import stepped as stage
+    from vrsim_cli.stages.dynamics import motion as dynamics
+
+    model = compile_model(parse_scene(text))
+    state = make_state(model)
+    for _ in range(steps):
+        after = state.replace(step=state.step + 1, t=(state.step + 1) * model.dt)
+        state = stage.step(model, state, after, dynamics)
+    tb = stage.tables(model, dynamics)
+    S, RS = np.zeros_like(tb["S"]), np.zeros_like(tb["RS"])
+    stage._rows(model, state, S, RS)
+    return model, tb, S, RS, state
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_broad_phase_keeps_every_pair_the_narrow_phase_reports(seed):
+    """kernels.collide.detect (hash grid, planes pruned to the boxes their half-space
+    reaches) against the narrow phase run on every pair of geoms whose grown boxes
+    overlap, found by testing all pairs, and on every pair with a plane (no pruning), with
+    random sweeps up to 0.2 m and tilted planes: the same contact rows, bit for bit (the
+    narrow phase drops pairs beyond their margin, so any pair the broad phase lost would
+    show), and the planes' pruning removed some of their pairs. (Pairs whose boxes do
+    not overlap are not candidates: box_box's separating-axis gap can report a pair
+    whose true distance exceeds the margin.)"""
+    from vrsim_cli.kernels import collide as kc
+
+    rng = np.random.default_rng(300 + seed)
+    model, tb, S, RS, _ = _kernel_inputs(_random_scene(rng), steps=0)
+    gf, tol = tb["gf"], model.collision.tolerance
+    sweep = rng.uniform(0.0, 0.2, model.n_body)
+    k, C, _, nf = kc.detect(gf, S, 0, sweep, tol, False)
+    ng = gf.shape[0]
+    W = np.empty((ng, kc.W_SIZE))
+    kc.place(gf, S, W)
+    pad = sweep[gf[:, kc.G_BODY].astype(int)] + 0.5 * tol
+    lo, hi = np.empty((ng, 3)), np.empty((ng, 3))
+    kc.aabbs(gf, S, W, pad, lo, hi)
+    plane = gf[:, kc.G_TYPE] == kc.PLANE
+    every = np.array([(i, j) for i in range(ng) for j in range(i + 1, ng)
+                      if gf[i, kc.G_BODY] != gf[j, kc.G_BODY]
+                      and (gf[i, kc.G_MOVES] or gf[j, kc.G_MOVES])
+                      and (plane[i] or plane[j] or
+                           (np.all(lo[i] <= hi[j]) and np.all(lo[j] <= hi[i])))], np.int64)
+    C_all, k_all, _, _ = kc.narrow_phase(gf, W, every, len(every), sweep, tol,
+                                         np.empty((2 * len(every), kc.C_SIZE)))
+    assert nf == 0 and k_all > 50
+    assert k == k_all
+    assert C[:k].tobytes() == C_all[:k_all].tobytes()
+    _, m = kc.broad_phase(gf, lo, hi, 0, pad)
+    assert m < len(every)  # the planes' far pairs were pruned
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_expand_pairs_finds_the_pairs_of_the_plain_double_loop(seed):
+    """kernels.stepped.expand_pairs (boxes sorted along x, unbounded ones apart) against
+    `_expand_pairs_all` (every grown geom against every geom): the same pairs in the same
+    order, for random grown sets and random contact tables holding some pairs already."""
+    from vrsim_cli.kernels import collide as kc
+    from vrsim_cli.kernels import stepped as ks
+
+    rng = np.random.default_rng(400 + seed)
+    model, tb, S, RS, _ = _kernel_inputs(_random_scene(rng, bodies=90), steps=0)
+    gf, tol = tb["gf"], model.collision.tolerance
+    ng, n = gf.shape[0], model.n_body
+    pad = rng.uniform(0.0, 0.3, ng) + 0.5 * tol
+    W = np.empty((ng, kc.W_SIZE))
+    kc.place(gf, S, W)
+    lo, hi = np.empty((ng, 3)), np.empty((ng, 3))
+    kc.aabbs(gf, S, W, pad, lo, hi)
+    for trial in range(4):
+        grown = rng.random(n) < (0.05, 0.3, 0.7, 1.0)[trial]
+        known = sorted({tuple(sorted(rng.choice(n, 2, replace=False).tolist()))
+                        for _ in range(40)})
+        K = np.zeros((len(known) + 1, ks.K_SIZE))
+        for r, (a, b) in enumerate(known):
+            K[r, ks.K_A], K[r, ks.K_B] = a, b
+        k0 = len(known) - 5  # the last rows appended unsorted, as in later rounds
+        P, m = ks.expand_pairs(gf, lo, hi, pad, 0, grown, K, k0, len(known))
+        R, mr = ks._expand_pairs_all(gf, lo, hi, pad, 0, grown, K, k0, len(known))
+        assert mr > 0 or not grown.any()
+        assert m == mr and P[:m].tobytes() == R[:mr].tobytes(), trial
+
+
+def _contact_table(text, steps):
+    """A stepped step's contact table K after detection, impacts and warm start (the
+    kernel's first round), with the velocities and body tables, from `text`'s state
+    after `steps` steps."""
+    from vrsim_cli.kernels import collide as kc
+    from vrsim_cli.kernels import dynamics as kd
+    from vrsim_cli.kernels import stepped as ks
+
+    model, tb, S, RS, state = _kernel_inputs(text, steps)
+    mf, gf, rb, rp, prm = tb["mf"], tb["gf"], tb["rb"], tb["rp"], tb["prm"]
+    n, ng = S.shape[0], gf.shape[0]
+    dt, tol, step = model.dt, model.collision.tolerance, state.step
+    wb, wr, wm, kS = tb["work"]
+    inv_m, IW = np.empty(n), np.empty((n, 9))
+    ks.body_tables(mf, step, S, RS, inv_m, IW)
+    V0, W0, U, Wv = (np.empty((n, 3)) for _ in range(4))
+    ks.kick(mf, step, state.t, dt, S, RS, inv_m, IW, wb[kd.WB_ACC], wr[kd.WR_M],
+            wr[kd.WR_W], np.zeros((n, 6)), V0, W0, U, Wv)
+    sw = np.empty(n)
+    ks.sweeps(dt, V0, W0, U, Wv, rb, sw)
+    k, C, _, _ = kc.detect(gf, S, step, sw, tol, False)
+    K = np.zeros((k, ks.K_SIZE))
+    for q in range(k):
+        ks.prepare(K, q, C, q, S, inv_m, IW, V0, W0, U, Wv, rb, rp, prm)
+    starts = np.empty(k + 1, np.int64)
+    npairs = ks.pair_starts(K, k, 0, starts)
+    ks.impacts(K, starts, npairs, 0, dt, prm[ks.PR_BOUNCE], U, Wv, np.empty(n, np.int64))
+    return model, tb, S, RS, K, k, inv_m, IW, U, Wv
+
+
+SETTLING = closed_box(120, 0.5, 0.5, seed=8, duration=1.0, gravity="[0, -9.81, 0]")
+
+
+@pytest.mark.parametrize("steps", [1, 40, 90])
+def test_solves_that_stop_at_a_fixed_point_give_the_bits_of_the_full_count(steps):
+    """The rest, the shock levels and the position pass stop after a sweep that changed
+    nothing (`until_fixed`): on the contact tables of a settling pile of 120 spheres (at
+    the first impacts, while it settles, and at rest) each gives the same bytes (impulses,
+    velocities, positions) as the same solve taken through every sweep, for iteration
+    counts from 1 to 400 (at 400 the pile's rest reaches its fixed point: the stop acts)."""
+    from vrsim_cli.kernels import stepped as ks
+
+    model, tb, S, RS, K0, k, inv_m, IW, U0, Wv0 = _contact_table(SETTLING, steps)
+    dt, tol, mf = model.dt, model.collision.tolerance, tb["mf"]
+    n = model.n_body
+    assert k > 20
+    for iterations in (1, 8, 400):
+        out = []
+        for fixed in (True, False):
+            K, U, Wv = K0.copy(), U0.copy(), Wv0.copy()
+            ks.rest(K, k, dt, iterations, U, Wv, fixed)
+            level = np.empty(n, np.int64)
+            ks.contact_levels(K, k, inv_m, tol, level)
+            order, m = ks.level_order(K, k, level, True)
+            DP, DL = np.zeros((n, 3)), np.zeros((n, 3))
+            ks.shock(K, order, m, level, dt, iterations, U, Wv, DP, DL, fixed)
+            S1, RS1 = S.copy(), RS.copy()
+            ks.end_separations(mf, K, k, S, RS, S1, RS1)
+            everything, _ = ks.level_order(K, k, level, False)
+            ks.push_out(mf, K, k, everything, level, iterations, 1e-4, inv_m, IW, S1, RS1,
+                        np.empty((n, 3)), np.empty((n, 3)), fixed)
+            out.append(b"".join(a.tobytes() for a in (K, U, Wv, DP, DL, S1, RS1)))
+        assert out[0] == out[1], iterations

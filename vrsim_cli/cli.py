@@ -221,6 +221,7 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         ("output", "frames", "dir"): (frames_dir, "--frames"),
         ("tolerance",): (tolerance, "--tolerance")})
     model = compile_model(scene, output_override=target)
+    _refuse_start_overlaps(scene, model)  # before kernels compile or outputs open
     to_stdout = model.output.path is not None and str(model.output.path) == "-"
     # With the trajectory on standard output, the summary goes to stderr.
     say = (lambda *a, **k: None) if quiet else \
@@ -401,7 +402,9 @@ def validate(scene_files, quiet):
     failed = False
     for file in scene_files:
         try:
-            model = compile_model(load_scene(file))
+            scene = load_scene(file)
+            model = compile_model(scene)
+            _refuse_start_overlaps(scene, model)
         except InputError as exc:
             failed = True
             for line in exc.lines():
@@ -417,6 +420,18 @@ def validate(scene_files, quiet):
             for note in model.notes:
                 click.echo(f"note: {printable(file)}: {printable(note)}", err=True)
     sys.exit(EXIT_INPUT if failed else 0)
+
+
+def _refuse_start_overlaps(scene, model) -> None:
+    """InputError (exit 2) when bodies start inside each other (`loop.overlap_problems`)."""
+    if model.collision is None or model.response is None:
+        return  # nothing to check: no numpy, no collision stage imported
+    from vrsim_cli.loop import overlap_problems
+    from vrsim_cli.model.state import make_state
+
+    problems = overlap_problems(scene, model, make_state(model))
+    if problems:
+        raise InputError(problems)
 
 
 # ----------------------------------------------------------------------------- mass-properties

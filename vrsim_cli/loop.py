@@ -120,10 +120,60 @@ def _check_translation(model: Model, state: State) -> None:
     body = int(np.argmax(far)) if far.any() else int(np.argmax(np.abs(vel).max(axis=1)))
     what = (f"moved more than {MAX_POSITION_M:.0e} m from the origin" if far.any() else
             f"moves faster than light ({np.abs(vel[body]).max():.3g} m/s along an axis)")
-    why = ("its prescribed motion (velocity, keyframes or drive) leaves the simulated world"
-           if model.body_type[body] == BODY_KINEMATIC else
-           "the integration blew up; try a smaller dt or another integrator")
+    if model.body_type[body] == BODY_KINEMATIC:
+        why = "its prescribed motion (velocity, keyframes or drive) leaves the simulated world"
+    elif in_free_flight(model, state, body):
+        why = (f"it has left the scene's numeric range in free flight (a fall or throw "
+               f"that nothing stops for {state.t:.6g} s, not a numerical blow-up); add a "
+               f"floor or shorten the run (duration)")
+    else:
+        why = "the integration blew up; try a smaller dt or another integrator"
     raise SimulationError(f"{what}: {why}", body=model.body_name[body], t=state.t)
+
+
+# A body is in free flight when its speed is within this factor (+ 1 m/s) of what its
+# start speed, gravity and its constant forces can give it by now: a fall or a throw
+# (impacts with restitution <= 1 only slow it), not a blow-up, whose speed runs away.
+FREE_FLIGHT_SLACK = 1.5
+
+
+def in_free_flight(model: Model, state: State, body: int) -> bool:
+    """Is `body`'s speed what a free flight from its start could reach by state.t?"""
+    speed = float(np.sqrt(np.einsum("i,i->", state.body_vel[body], state.body_vel[body])))
+    if not np.isfinite(speed) or model.body_inv_mass[body] <= 0.0:
+        return False
+    accel = float(np.sqrt(np.einsum("i,i->", model.gravity, model.gravity)))
+    mine = model.force_body == body
+    if mine.any():
+        accel += float(np.sqrt(np.einsum("ij,ij->i", model.force_vec[mine],
+                                         model.force_vec[mine])).sum()
+                       * model.body_inv_mass[body])
+    v0 = float(np.sqrt(np.einsum("i,i->", model.body_vel0[body], model.body_vel0[body])))
+    return speed <= FREE_FLIGHT_SLACK * (v0 + accel * state.t) + 1.0
+
+
+def overlap_problems(scene, model: Model, state: State) -> list:
+    """Located problems (scene.problem) for bodies that start inside each other, in a
+    scene whose collision response would push them apart (`collision.start_overlaps`):
+    which two bodies and by how much. Empty when there are none."""
+    if model.collision is None or model.response is None:
+        return []
+    from vrsim_cli.stages.collision.detect import start_overlaps
+
+    if model.animation is not None and model.animation.has_motion:
+        state = scenegraph.step(model, state)  # kinematic bodies where the run starts them
+    n_scene = len(scene.data.get("bodies") or [])
+    problems = []
+    for a, b, depth in start_overlaps(model, state, n_scene)[:5]:
+        name_a, name_b = (model.body_name[i] for i in (a, b))  # Problem escapes them
+        problems.append(scene.problem(
+            ("bodies", b, "position"),
+            f"overlap at start: bodies '{name_a}' and '{name_b}' interpenetrate by "
+            f"{depth:.4g} m at t = 0 (more than collision.tolerance, "
+            f"{model.collision.tolerance:g} m)",
+            "move them apart: collision response would push them out at whatever speed "
+            "the overlap asks for"))
+    return problems
 
 
 def prepare(model: Model, say: Callable[..., None] | None = None) -> None:
@@ -302,7 +352,7 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
                 # compiled call per output sample (whole frames of at most CALL_BODY_STEPS
                 # when someone waits for callbacks)
                 cap = model.n_steps if not callbacks else model.steps_per_frame * max(
-                    1, CALL_BODY_STEPS // (model.steps_per_frame * model.n_body))
+                    1, CALL_BODY_STEPS // (model.steps_per_frame * max(1, model.n_body)))
                 while state.step < model.n_steps:
                     if should_stop is not None and should_stop():
                         result.interrupted = True

@@ -205,6 +205,38 @@ def _overlap(lo, hi, i, j):
     return True
 
 
+@kernel(inline="always")
+def _plane_reaches(gf, pad, lo, hi, p, j):
+    """Whether geom j's box (lo, hi) reaches plane p's half-space grown by p's pad (its
+    sweep and half the tolerance, as the other boxes): the plane's own box is infinite,
+    so without this every geom in the scene is a candidate of every plane. The box's
+    lowest point along the normal against the plane's offset; boxes grown by their pads
+    contain every point a pair function can report within its margin, and the slack of
+    1e-9 of the coordinates keeps a pair that round-off would put on the line."""
+    if int(gf[j, G_TYPE]) == PLANE:
+        return True
+    low = 0.0
+    scale = abs(gf[p, G_PO]) + pad[p]
+    for c in range(3):
+        nc = gf[p, G_PN + c]
+        low += nc * (lo[j, c] if nc >= 0.0 else hi[j, c])
+        scale += abs(lo[j, c]) + abs(hi[j, c])
+    return not low - gf[p, G_PO] > pad[p] + 1e-9 * scale  # (NaN: a candidate, as _overlap)
+
+
+@kernel(inline="always")
+def _candidate(gf, pad, lo, hi, i, j):
+    """Boxes overlap (a plane: its half-space reaches the other box) and the pair is
+    wanted (`_wanted`)."""
+    if not _overlap(lo, hi, i, j) or not _wanted(gf, i, j):
+        return False
+    if int(gf[i, G_TYPE]) == PLANE:
+        return _plane_reaches(gf, pad, lo, hi, i, j)
+    if int(gf[j, G_TYPE]) == PLANE:
+        return _plane_reaches(gf, pad, lo, hi, j, i)
+    return True
+
+
 @kernel
 def _push_pair(P, n, i, j):
     if n >= P.shape[0]:
@@ -267,9 +299,11 @@ HASH_X, HASH_Y, HASH_Z = 73856093, 19349663, 83492791  # Teschner et al. 2003
 
 
 @kernel
-def broad_phase(gf, lo, hi, step):
+def broad_phase(gf, lo, hi, step, pad):
     """Candidate geom pairs (P (m, 2) int64, i < j, and m) whose boxes overlap, among the
-    geoms whose body is in the scene at `step`: a uniform hash grid over the ordinary
+    geoms whose body is in the scene at `step` (with a plane: whose half-space, grown by
+    the plane's pad (n_geom,) m, reaches the other box; `_plane_reaches`): a uniform hash
+    grid over the ordinary
     boxes (cells as large as the largest, each box filed in the cell of its centre and
     paired with the later boxes of its own cell and the boxes of the 13 forward
     neighbour cells, so each pair is found once; cells are hashed into buckets by a
@@ -370,7 +404,7 @@ def broad_phase(gf, lo, hi, step):
                 continue
             if not (math.isfinite(size[q]) and size[q] <= limit) and j < i:
                 continue
-            if _overlap(lo, hi, i, j) and _wanted(gf, i, j):
+            if _candidate(gf, pad, lo, hi, i, j):
                 P = _push_pair(P, m, i, j)
                 m += 1
     return P, m
@@ -1160,7 +1194,7 @@ def detect(gf, S, step, sweep, tolerance, planar):
     lo = np.empty((n_geom, 3))
     hi = np.empty((n_geom, 3))
     aabbs(gf, S, W, pad, lo, hi)
-    P, m = broad_phase(gf, lo, hi, step)
+    P, m = broad_phase(gf, lo, hi, step, pad)
     C = np.empty((max(16, 2 * m), C_SIZE))
     C, k, F, nf = narrow_phase(gf, W, P, m, sweep, tolerance, C)
     if planar:

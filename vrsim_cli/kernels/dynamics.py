@@ -89,7 +89,10 @@ RT_SIZE = 35
 P_GRAVITY, P_INTEGRATOR, P_ORTHONORMALIZE, P_EXACT_FLOW, P_STATIC_FORCES, P_ENERGY_GUARD, \
     P_HAS_EMITTERS, P_TOLERANCE, P_GUARD_FROM, P_ENERGY0_SCALE, P_WEIGHT, \
     P_GROWTH_LIMIT = 0, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13
-P_SIZE = 14
+# the energy guard's bound (`energy_bound`, set by stages.dynamics.motion.packed)
+P_OMEGA, P_ORDER, P_SAFETY, P_STEPS_PER_TURN, P_FLOOR, P_ROUND_OFF, P_TWO_SIDED = \
+    14, 15, 16, 17, 18, 19, 20
+P_SIZE = 21
 
 # scratch planes: wb (WB_SIZE, n, 3), wr (WR_SIZE, r, 12), wm (WM_SIZE + n,)
 WB_ACC, WB_VH = 0, 1
@@ -853,9 +856,55 @@ def body_energy(mf, S, RS, out):
 
 
 @kernel
-def energy_check(mf, S, RS, base, per_body):
-    """-1 when the energy has not grown past its bound (docs/dynamics.md), else the body
-    whose energy grew most. `base` (n,) J: the baseline per body."""
+def energy_bound(mf, S, RS, kinetic, spring_e, tau, dt):
+    """J: how much the mechanical energy of a conserving scene may have grown tau s after
+    the guard's baseline, in steps of dt (docs/dynamics.md, "Energy guard"):
+
+        scale * min(cap, max(floor, safety * (omega dt)^p * (1 + omega tau)))
+        + round_off * sum_b m_b |g| |x_b|
+
+    An order-p method errs by ~(omega dt)^(p+1) of the energy per step, (omega dt)^p
+    (omega tau) after tau / dt steps. omega (rad/s): the scene's frequency scale (spin,
+    springs, damping, gravity over 1 m; P_OMEGA), raised to sqrt(2 T / I_min) of any
+    rotating body now (T = L.omega / 2 its kinetic energy of rotation: |omega| never
+    exceeds it while T is kept; impacts and springs can change it). dopri5
+    (p = 5) errs by at most its tolerance per step, over max(omega tau * P_STEPS_PER_TURN,
+    tau / dt) steps. scale: kinetic + |spring| now or at t = 0, + m |g| 1 m per body. The
+    last term covers the round-off of m g.x far from the origin."""
+    op = int(mf[H_PARAM])
+    omega = mf[op + P_OMEGA]
+    for k in range(RS.shape[0]):
+        i = at(mf, H_ROT, k, RT_SIZE)
+        moment = mf[i + RT_MOMENTS]  # the smallest principal moment
+        if mf[i + RT_KINEMATIC] == 0.0 and moment > 0.0:
+            Lk = row3(RS, k, RS_L)
+            twice_t = la.dot(Lk, world_omega(mf, k, row9(RS, k, RS_R), Lk))
+            omega = max(omega, math.sqrt(max(twice_t, 0.0) / moment))
+    order = int(mf[op + P_ORDER])
+    if order >= 5:
+        steps = max(omega * tau * mf[op + P_STEPS_PER_TURN], tau / dt)
+        rel = mf[op + P_SAFETY] * mf[op + P_TOLERANCE] * (1.0 + steps)
+    else:
+        power = 1.0
+        for _ in range(order):  # no pow: libm's differs in the last bit between CPUs
+            power *= omega * dt
+        rel = mf[op + P_SAFETY] * power * (1.0 + omega * tau)
+    rel = min(mf[op + P_GROWTH_LIMIT], max(mf[op + P_FLOOR], rel))
+    g = la.norm(vec3(mf, op + P_GRAVITY))
+    ob = int(mf[H_BODY])
+    far = 0.0
+    for b in range(S.shape[0]):
+        far += mf[ob + b * B_SIZE + B_MASS] * g * la.norm(row3(S, b, S_POS))
+    scale = max(kinetic + abs(spring_e), mf[op + P_ENERGY0_SCALE]) + mf[op + P_WEIGHT]
+    return rel * scale + mf[op + P_ROUND_OFF] * far
+
+
+@kernel
+def energy_check(mf, S, RS, base, per_body, tau, dt):
+    """(-1 when the energy has not grown past `energy_bound` (nor fallen past it, in a
+    scene with nothing that dissipates: P_TWO_SIDED), else the body whose energy changed
+    most that way; the growth J (< 0: a loss); the bound J). `base` (n,) J: the
+    baseline per body; tau s: the time since it."""
     kinetic, spring_e = body_energy(mf, S, RS, per_body)
     n = S.shape[0]
     gain = 0.0
@@ -863,15 +912,16 @@ def energy_check(mf, S, RS, base, per_body):
         gain += per_body[i]
     for i in range(n):
         gain -= base[i]
-    bound = param(mf, P_GROWTH_LIMIT) * (kinetic + abs(spring_e) + param(mf, P_ENERGY0_SCALE)
-                                         + param(mf, P_WEIGHT))
-    if gain > bound:
+    bound = energy_bound(mf, S, RS, kinetic, spring_e, tau, dt)
+    sign = 1.0 if gain > bound else -1.0 if (
+        param(mf, P_TWO_SIDED) != 0.0 and -gain > bound) else 0.0
+    if sign != 0.0:
         worst, worst_body = -math.inf, 0
         for i in range(n):
-            if per_body[i] - base[i] > worst:
-                worst, worst_body = per_body[i] - base[i], i
-        return worst_body
-    return -1
+            if sign * (per_body[i] - base[i]) > worst:
+                worst, worst_body = sign * (per_body[i] - base[i]), i
+        return worst_body, gain, bound
+    return -1, gain, bound
 
 
 # ----------------------------------------------------------------------------- entries
@@ -966,7 +1016,7 @@ def _make_run(integ: int):
                 base_set[0] = 1
             if guard and t_after >= guard_from and (after % steps_per_frame == 0
                                                     or after == n_steps):
-                bad = energy_check(mf, S1, RS1, base, per_body)
+                bad = energy_check(mf, S1, RS1, base, per_body, t_after - guard_from, dt)[0]
                 if bad >= 0:
                     status[0] = ENERGY_GROWTH
                     status[3] = bad

@@ -629,25 +629,32 @@ def warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv):
 
 
 @kernel
-def rest(K, k, dt, iterations, U, Wv):
+def rest(K, k, dt, iterations, U, Wv, until_fixed):
     """Sequential impulses on the kicked velocities: per contact the normal towards
     v_n >= -max(gap, 0)/dt (a gap may close exactly within the step; a penetration is left
     to the position pass, no velocity is added for it), clamped >= 0, then friction in
-    the Coulomb disc of the normal impulse."""
+    the Coulomb disc of the normal impulse. `until_fixed`: stop after a sweep that changed
+    no impulse (a fixed point: the same bits as all `iterations`; the tests compare)."""
     for _ in range(iterations):
+        moved = False
         for i in range(k):
             if int(K[i, K_MODE]) != IMPULSE:
                 continue
             target = -max(K[i, K_GAP], 0.0) / dt
             vn = rel3(K, i, U, Wv)[0]
             new = max(K[i, K_LN] + (target - vn) * K[i, K_MN], 0.0)
-            apply(K, i, 0, new - K[i, K_LN], U, Wv)
+            d0 = new - K[i, K_LN]
+            apply(K, i, 0, d0, U, Wv)
             K[i, K_LN] = new
             _, vt1, vt2 = rel3(K, i, U, Wv)
             s1, s2 = friction(K, i, K[i, K_LT], K[i, K_LT + 1], vt1, vt2, K[i, K_MU] * new)
-            apply(K, i, 1, s1 - K[i, K_LT], U, Wv)
-            apply(K, i, 2, s2 - K[i, K_LT + 1], U, Wv)
+            d1, d2 = s1 - K[i, K_LT], s2 - K[i, K_LT + 1]
+            apply(K, i, 1, d1, U, Wv)
+            apply(K, i, 2, d2, U, Wv)
             K[i, K_LT], K[i, K_LT + 1] = s1, s2
+            moved = moved or d0 != 0.0 or d1 != 0.0 or d2 != 0.0
+        if until_fixed and not moved:  # a sweep that changed nothing: every later one
+            break  # would repeat it exactly (the same bits as the full count)
 
 
 @kernel
@@ -759,7 +766,7 @@ def _shock_apply(K, i, j, upper_b, u, sgn, im, dl, U, Wv, DP, DL):
 
 
 @kernel
-def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL):
+def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL, until_fixed):
     """Shock propagation (Guendelman, Bridson & Fedkiw 2003) on velocities, after the
     rest iterations: level by level from the ground up, each contact between two levels
     solved with its lower body frozen (infinite mass: the impulse acts on the upper body
@@ -767,7 +774,8 @@ def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL):
     resting load: it may pull back what the rest pushed) and friction in the Coulomb disc of all
     the contact's normal impulse. The iterations' leftover error then cannot make a
     stack sink, whatever the mass ratio (a 100 kg box on a 1 kg slab). `order` (m,): the
-    contacts between levels, ground up (`level_order`)."""
+    contacts between levels, ground up (`level_order`). `until_fixed`: a level stops after
+    a sweep that changed no impulse (its later sweeps would repeat it exactly)."""
     q0 = 0
     while q0 < m:
         i0 = order[q0]
@@ -777,6 +785,7 @@ def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL):
                              level[int(K[order[q1], K_B])]) == lv:
             q1 += 1
         for _ in range(iterations):
+            moved = False
             for q in range(q0, q1):
                 i = order[q]
                 mode = int(K[i, K_MODE])
@@ -819,12 +828,17 @@ def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL):
                             norm = math.sqrt(t1 * t1 + t2 * t2)
                             if norm > limit:
                                 scale = limit / norm
-                                _shock_apply(K, i, 1, upper_b, u, sgn, im,
-                                             t1 * scale - t1, U, Wv, DP, DL)
-                                K[i, K_SN + 1] += t1 * scale - t1
+                                d1 = t1 * scale - t1
+                                _shock_apply(K, i, 1, upper_b, u, sgn, im, d1, U, Wv, DP,
+                                             DL)
+                                K[i, K_SN + 1] += d1
                                 new = t2 * scale - (K[i, K_LT + 1] + K[i, K_IT + 1])
+                                moved = moved or d1 != 0.0
                     _shock_apply(K, i, j, upper_b, u, sgn, im, new - old, U, Wv, DP, DL)
                     K[i, K_SN + j] = new
+                    moved = moved or new - old != 0.0
+            if until_fixed and not moved:  # a sweep that changed nothing: every later
+                break  # one would repeat it exactly (the same bits as the full count)
         q0 = q1
 
 
@@ -855,13 +869,15 @@ def moved(mf, b, r, S, RS, S1, RS1):
 
 
 @kernel
-def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, dth):
+def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, dth,
+             until_fixed):
     """The position pass: pseudo-impulses Q >= 0 along the normals (Gauss-Seidel on the
     linearised separations, the contacts ground up in `order` (k,), and with shock
     propagation: a contact between two `level`s moves its upper body only) until every
     contact that ends deeper than `slop` is back at -slop; then the bodies are moved by dx and turned by exp(dth), their angular momentum
     turned with them (body-frame L kept, so the kinetic energy is unchanged), and no
-    velocity changes. dx, dth (n, 3): scratch."""
+    velocity changes. dx, dth (n, 3): scratch. `until_fixed`: stop after a sweep that
+    moved nothing (later sweeps would repeat it exactly)."""
     n = S1.shape[0]
     for b in range(n):
         for c in range(3):
@@ -876,6 +892,7 @@ def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, d
     if not any_deep:
         return
     for _ in range(iterations):
+        moved = False
         for o in range(k):
             i = order[o]
             mode = int(K[i, K_MODE])
@@ -900,6 +917,7 @@ def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, d
             q = new - K[i, K_Q]
             if q == 0.0:
                 continue
+            moved = True
             K[i, K_Q] = new
             if imb != 0.0:
                 wb = la.matvec(kd.row9(IW, b, 0), la.scale(q, get(K, i, K_RNB)))
@@ -911,6 +929,8 @@ def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, d
                 for c in range(3):
                     dx[a, c] -= ima * q * nrm[c]
                     dth[a, c] -= wa[c]
+        if until_fixed and not moved:  # a sweep that changed nothing: every later one
+            break  # would repeat it exactly (the same bits as the full count)
     for b in range(n):
         for c in range(3):
             S1[b, kd.S_POS + c] += dx[b, c]
@@ -965,11 +985,93 @@ def has_pair(K, k0, k, a, b):
     return False
 
 
+@kernel(inline="always")
+def _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
+    """Whether grown geom i and geom j make a new candidate pair: j in the scene, the
+    pair once when both grew, a candidate (`kc._candidate`), their bodies without a
+    contact in K yet."""
+    if j == i or gf[j, kc.G_EMIT] > step:
+        return False
+    if grown[int(gf[j, kc.G_BODY])] and j < i:
+        return False  # both grew: once
+    if not kc._candidate(gf, pad, lo, hi, i, j):
+        return False
+    ba, bb = int(gf[i, kc.G_BODY]), int(gf[j, kc.G_BODY])
+    return not has_pair(K, k0, k, min(ba, bb), max(ba, bb))
+
+
 @kernel
-def expand_pairs(gf, lo, hi, step, grown, K, k0, k):
+def expand_pairs(gf, lo, hi, pad, step, grown, K, k0, k):
     """Candidate geom pairs of the bodies whose sweep grew (grown (n,) bool) against all
-    geoms in the scene at `step`, whose boxes overlap and whose bodies have no contact in
-    K yet. Returns (P, m)."""
+    geoms in the scene at `step`, whose boxes overlap (`kc._candidate`) and whose bodies
+    have no contact in K yet. Returns (P, m), in the order of the plain double loop over
+    (i, j) (`_expand_pairs_all`, the reference): the contact rows of later rounds are
+    appended in that order and the solves visit them so. Each grown geom looks only at
+    the geoms whose box starts within the widest box's width of its own along x (boxes
+    sorted by their low x once per call) and at the unbounded ones (planes, NaN)."""
+    n_geom = gf.shape[0]
+    P = np.empty((16, 2), np.int64)
+    m = np.int64(0)
+    any_grown = False
+    for i in range(n_geom):
+        if gf[i, kc.G_EMIT] <= step and grown[int(gf[i, kc.G_BODY])]:
+            any_grown = True
+            break
+    if not any_grown:
+        return P, m
+    bounded = np.empty(n_geom, np.int64)
+    others = np.empty(n_geom, np.int64)
+    nb = no = 0
+    width = 0.0
+    for j in range(n_geom):
+        if math.isfinite(lo[j, 0]) and math.isfinite(hi[j, 0]) and hi[j, 0] >= lo[j, 0]:
+            bounded[nb] = j
+            nb += 1
+            width = max(width, hi[j, 0] - lo[j, 0])
+        else:
+            others[no] = j
+            no += 1
+    x = np.empty(nb)
+    for q in range(nb):
+        x[q] = lo[bounded[q], 0]
+    by_x = np.argsort(x, kind="mergesort")
+    xs = np.empty(nb)
+    for q in range(nb):
+        xs[q] = x[by_x[q]]
+    near = np.empty(n_geom, np.int64)
+    for i in range(n_geom):
+        if gf[i, kc.G_EMIT] > step or not grown[int(gf[i, kc.G_BODY])]:
+            continue
+        if not (math.isfinite(lo[i, 0]) and math.isfinite(hi[i, 0])):
+            cnt = 0
+            for j in range(n_geom):
+                near[cnt] = j
+                cnt += 1
+        else:
+            # a box overlapping i's along x starts in [lo_i - width, hi_i] (the slack
+            # covers the rounding of the widths)
+            first = lo[i, 0] - width - 1e-9 * (width + abs(lo[i, 0]))
+            a, b = np.searchsorted(xs, first, "left"), np.searchsorted(xs, hi[i, 0], "right")
+            cnt = 0
+            for q in range(a, b):
+                near[cnt] = bounded[by_x[q]]
+                cnt += 1
+            for q in range(no):
+                near[cnt] = others[q]
+                cnt += 1
+            near[:cnt].sort()
+        for e in range(cnt):
+            j = near[e]
+            if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
+                P = kc._push_pair(P, m, i, j)
+                m += 1
+    return P, m
+
+
+@kernel
+def _expand_pairs_all(gf, lo, hi, pad, step, grown, K, k0, k):
+    """`expand_pairs` as the plain double loop over all geoms (its reference in the
+    tests)."""
     n_geom = gf.shape[0]
     P = np.empty((16, 2), np.int64)
     m = np.int64(0)
@@ -977,17 +1079,9 @@ def expand_pairs(gf, lo, hi, step, grown, K, k0, k):
         if gf[i, kc.G_EMIT] > step or not grown[int(gf[i, kc.G_BODY])]:
             continue
         for j in range(n_geom):
-            if j == i or gf[j, kc.G_EMIT] > step:
-                continue
-            if grown[int(gf[j, kc.G_BODY])] and j < i:
-                continue  # both grew: once
-            if not (kc._overlap(lo, hi, i, j) and kc._wanted(gf, i, j)):
-                continue
-            ba, bb = int(gf[i, kc.G_BODY]), int(gf[j, kc.G_BODY])
-            if has_pair(K, k0, k, min(ba, bb), max(ba, bb)):
-                continue
-            P = kc._push_pair(P, m, i, j)
-            m += 1
+            if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
+                P = kc._push_pair(P, m, i, j)
+                m += 1
     return P, m
 
 
@@ -1132,16 +1226,16 @@ def _make_entry(integ: int, kinds: tuple):
                 if not more or rnd > 2 * MAX_ROUNDS:
                     if rested:
                         break
-                    rest(K, k, dt, int(prm[PR_ITER]), U, Wv)  # all pairs known: rest
+                    rest(K, k, dt, int(prm[PR_ITER]), U, Wv, True)  # all pairs known: rest
                     rested = True
                     continue
             for g in range(ng):
                 pad[g] = sw[int(gf[g, kc.G_BODY])] + 0.5 * tol
             kc.aabbs(gf, S, W, pad, lo, hi)
             if rnd == 0:
-                P, m = kc.broad_phase(gf, lo, hi, step)
+                P, m = kc.broad_phase(gf, lo, hi, step, pad)
             else:
-                P, m = expand_pairs(gf, lo, hi, step, grown, K, k0, k)
+                P, m = expand_pairs(gf, lo, hi, pad, step, grown, K, k0, k)
             C = np.empty((max(16, 2 * m + XC.shape[0]), kc.C_SIZE))
             kn = np.int64(0)
             for p in range(m):  # the narrow phase, pruned to the scene's pair kinds
@@ -1234,12 +1328,12 @@ def _make_entry(integ: int, kinds: tuple):
                 warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv)
                 slide(K, k, dt, inv_m, U, DP)
             if rested:  # pairs found after the rest: rest again with them
-                rest(K, k, dt, int(prm[PR_ITER]), U, Wv)
+                rest(K, k, dt, int(prm[PR_ITER]), U, Wv, True)
             rnd += 1
         level = np.empty(n, np.int64)
         contact_levels(K, k, inv_m, tol, level)
         order, m_order = level_order(K, k, level, True)
-        shock(K, order, m_order, level, dt, SHOCK_ITERATIONS, U, Wv, DP, DL)
+        shock(K, order, m_order, level, dt, SHOCK_ITERATIONS, U, Wv, DP, DL, True)
         wrench(K, k, DP, DL)
         # the impulses as a constant wrench over the step: the integrator applies them
         for b in range(n):
@@ -1327,7 +1421,7 @@ def _make_entry(integ: int, kinds: tuple):
         dx, dth = np.empty((n, 3)), np.empty((n, 3))
         everything, _ = level_order(K, k, level, False)
         push_out(mf, K, k, everything, level, int(prm[PR_POS_ITER]), prm[PR_SLOP], inv_m,
-                 IW, S1, RS1, dx, dth)
+                 IW, S1, RS1, dx, dth, True)
         if k > k0:  # rows of later rounds were appended: sort them in (K_A, K_B are
             K = kc.sort_by_pair(K, k)  # columns 0 and 1, as in detection's rows)
         OUT, m_out = outputs(K, k, tol)

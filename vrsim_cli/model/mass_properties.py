@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.eigen import det3, eigh3, principal_axes
 from vrsim_cli.scene.files import MAX_MESH_BYTES
 
 SHAPES_WITH_MASS = ("sphere", "box", "capsule", "cylinder", "mesh")
@@ -58,8 +59,9 @@ class MassProperties:
 
     def principal(self) -> tuple[np.ndarray, np.ndarray]:
         """(moments (3,) ascending, axes (3, 3) with the axes as columns, right-handed).
-        A tensor that is diagonal up to round-off keeps the body axes (eigh would pick
-        arbitrary axes inside a degenerate eigenspace, e.g. for the slide's cube)."""
+        A tensor that is diagonal up to round-off keeps the body axes (a rotation would
+        pick arbitrary axes inside a degenerate eigenspace, e.g. for the slide's cube);
+        the others go through our Jacobi solver (`maths.eigen`: no LAPACK)."""
         inertia = self.inertia
         off = inertia - np.diag(np.diag(inertia))
         if np.abs(off).max() <= 1e-12 * np.abs(inertia).max():
@@ -67,13 +69,10 @@ class MassProperties:
             key = np.round(np.diag(inertia) / max(np.abs(inertia).max(), 1e-300), 12)
             order = np.argsort(key, kind="stable")
             axes = np.eye(3)[:, order]
-            if np.linalg.det(axes) < 0:
+            if det3(axes) < 0:
                 axes[:, 2] = -axes[:, 2]
             return np.diag(inertia)[order], axes
-        moments, axes = np.linalg.eigh(inertia)
-        if np.linalg.det(axes) < 0:
-            axes[:, 2] = -axes[:, 2]
-        return moments, axes
+        return principal_axes(inertia)
 
 
 class MassPropertyError(ValueError):
@@ -276,7 +275,7 @@ def _check_inertia(props: MassProperties, dim: int, explicit: bool, body: dict) 
         return
     if np.abs(inertia - inertia.T).max() > 1e-9 * scale:
         raise MassPropertyError(key, "the inertia tensor must be symmetric")
-    moments = np.linalg.eigvalsh(inertia)
+    moments = eigh3(inertia)[0]
     if moments[0] <= 1e-12 * scale:
         hint = ("particles on one line have no inertia about that line; add a particle off "
                 "the line or give inertia") if not explicit else \

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vrsim_cli.maths import trig
 from vrsim_cli.maths.products import dot
 
 from vrsim_cli.errors import InputError, Problem, format_key_path
@@ -268,8 +269,12 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
             from vrsim_cli.model.response import compile_response
             response = compile_response(scene, len(names), _vec3(gravity, dim),
                                         collision.tolerance, problems)
-            if response is not None and rigid is not None and BODY_KINEMATIC in kinds:
-                # a kinematic body that hits others does work on them: energy may grow
+            if response is not None and rigid is not None and (
+                    BODY_KINEMATIC in kinds or _superelastic(response)):
+                # a kinematic body that hits others does work on them, and so would an
+                # impact with restitution > 1 (the schema allows <= 1): energy may grow;
+                # other impacts only take energy away, the guard's bound stays the
+                # integrator's
                 rigid = dataclasses.replace(rigid, energy_guard=False)
         if problems:
             raise InputError(problems)
@@ -426,6 +431,12 @@ def _overwritten_inputs(scene: Scene, output: OutputSpec, shapes) -> list[Proble
     return []
 
 
+def _superelastic(response) -> bool:
+    """Does any body or pair set a restitution above 1 (impacts that add energy)?"""
+    values = np.concatenate([response.body_restitution, response.pair_restitution])
+    return bool((values[np.isfinite(values)] > 1.0).any())
+
+
 def _start_overlaps(scene: Scene, kinds, pos0, shapes, emit) -> int:
     """Pairs of colliding bodies that start at one point (budget.coincident_pairs): bodies
     at the same position, emitted particles released at the same step."""
@@ -540,17 +551,19 @@ def _emit(emitter: dict, dim: int, dt: float) -> dict:
     speed = float(emitter["speed"]) * (1.0 + jitter * rng.uniform(-1.0, 1.0, count))
     if dim == 3:
         # Uniform over the spherical cap of half-angle `spread` around `axis`.
-        cos_theta = rng.uniform(math.cos(spread), 1.0, count)
+        # sin and cos of our own (maths/trig.py): libm's last bit depends on the CPU
+        cos_theta = rng.uniform(trig.cos(spread), 1.0, count)
         phi = rng.uniform(0.0, 2.0 * math.pi, count)
         sin_theta = np.sqrt(np.maximum(0.0, 1.0 - cos_theta ** 2))
         helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
         u = unit(np.cross(axis, helper))
         w = np.cross(axis, u)
-        dirs = (cos_theta[:, None] * axis + (sin_theta * np.cos(phi))[:, None] * u
-                + (sin_theta * np.sin(phi))[:, None] * w)
+        sin_phi, cos_phi = trig.sin_cos(phi)
+        dirs = (cos_theta[:, None] * axis + (sin_theta * cos_phi)[:, None] * u
+                + (sin_theta * sin_phi)[:, None] * w)
     else:
         theta = rng.uniform(-spread, spread, count)
-        c, s = np.cos(theta), np.sin(theta)
+        s, c = trig.sin_cos(theta)
         dirs = np.stack([c * axis[0] - s * axis[1], s * axis[0] + c * axis[1],
                          np.zeros(count)], axis=1)
     nozzle = _vec3(emitter.get("position", [0.0] * dim), dim)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.eigen import principal_axes
 from vrsim_cli.maths.products import inv3, matmul, norm
 
 from vrsim_cli.errors import Problem
@@ -22,7 +23,7 @@ from vrsim_cli.model.mass_properties import MassPropertyError, body_mass_propert
 from vrsim_cli.scene.rigid import rotates
 
 ADAPTIVE = ("dopri5",)
-BODY_KINEMATIC = 1  # model.BODY_KINEMATIC (model imports this module)
+BODY_DYNAMIC, BODY_KINEMATIC = 0, 1  # model.BODY_* (model imports this module)
 DEFAULT_TOLERANCE = 1e-6
 DEFAULT_FREE_FLOW = "splitting"
 SPLITTING = ("symplectic-euler", "verlet")  # the integrators with a free-rotation drift
@@ -90,6 +91,7 @@ class RigidModel:
     static_forces: bool = False  # forces and torques depend on time only (not on x, v, R, L)
     energy0_body: np.ndarray | None = None  # (n_body,) J at t = 0 (energy_guard only)
     energy0_scale: float = 0.0  # J: kinetic + |spring| energy at t = 0 (energy_guard only)
+    energy_omega: float = 0.0  # rad/s: the scene's frequency scale (`frequency_scale`)
     # s: the guard watches the energy from this time on (0: from the start; when windowed
     # forces or torques act, from the end of the last window, against the energy then).
     energy_guard_from: float = 0.0
@@ -213,10 +215,10 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
     inv = np.zeros((r, 3, 3))
     if (~kin).any():
         inv[~kin] = inv3(inertia_arr[~kin])
-    moments, axes = np.linalg.eigh(inertia_arr) if r else (np.zeros((0, 3)),
-                                                            np.zeros((0, 3, 3)))
-    flip = np.linalg.det(axes) < 0 if r else np.zeros(0, dtype=bool)
-    axes[flip, :, 2] *= -1.0  # right-handed principal frames
+    # right-handed principal frames, by our Jacobi (LAPACK's last bits depend on the CPU)
+    moments, axes = np.zeros((r, 3)), np.zeros((r, 3, 3))
+    for k in range(r):
+        moments[k], axes[k] = principal_axes(inertia_arr[k])
     R0 = quat_to_matrix(np.reshape(np.array([quat0[i] for i in rot_index]), (r, 4)))
     w0 = np.reshape(np.array(angvel0, dtype=float), (r, 3))
     L0 = np.einsum("rij,rjk,rlk,rl->ri", R0, inertia_arr, R0, w0)
@@ -298,8 +300,48 @@ def compile_rigid(scene, dim: int, n_body: int, kinds: list, masses: list, pos0:
     per_body, kinetic, spring = mechanical_energy(
         rigid, np.array(masses, dtype=float), gravity, np.reshape(pos0, (n_body, 3)),
         np.reshape(vel0, (n_body, 3)), R0, L0)
+    omega = frequency_scale(rigid, np.array(masses, dtype=float), kinds, gravity)
     return dataclasses.replace(rigid, energy0_body=_frozen(per_body),
-                               energy0_scale=kinetic + abs(spring))
+                               energy0_scale=kinetic + abs(spring), energy_omega=omega)
+
+
+def frequency_scale(rigid: RigidModel, mass: np.ndarray, kinds: list,
+                    gravity: np.ndarray, length_m: float = 1.0) -> float:
+    """rad/s: the fastest rate at which a conserving scene's state turns, for the energy
+    guard's bound (`kernels.dynamics.energy_bound`): the largest of
+    - every dynamic rotating body's sqrt(2 T / I_min), T = L.omega / 2 its energy of
+      rotation (|omega|^2 = sum L_i^2 / I_i^2 <= 2 T / I_min: a free body never turns
+      faster);
+    - every spring's sqrt(k w) and c w, w = sum over its moving ends of 1/m + |arm|^2 /
+      I_min (the stiffness and damping rate of the spring with the ends' inertia);
+    - every body's linear and angular damping rate (1/s);
+    - sqrt(|g| / length_m) when a dynamic body feels gravity (the rate at which a fall
+      of one length changes the speed; the guard's scale uses the same length).
+    mass: (n_body,) kg; kinds: (n_body,) body types; gravity: (3,) m/s^2."""
+    rates = [0.0]
+    slot = rigid.rot_slot
+    i_min = rigid.rot_moments[:, 0] if len(rigid.rot_moments) else np.zeros(0)
+    for k in range(rigid.n_rot):
+        if not rigid.rot_kinematic[k] and i_min[k] > 0.0:  # 2 T = L.omega
+            twice_t = float(np.einsum("i,i->", rigid.rot_angmom0[k], rigid.rot_angvel0[k]))
+            rates.append(math.sqrt(max(twice_t, 0.0) / i_min[k]))
+
+    def weight(body: int, arm: np.ndarray) -> float:
+        if body < 0 or kinds[body] != BODY_DYNAMIC or not mass[body] > 0.0:
+            return 0.0
+        k = slot[body]
+        turn = norm(arm) ** 2 / i_min[k] if k >= 0 and i_min[k] > 0.0 else 0.0
+        return 1.0 / mass[body] + turn
+
+    for j in range(len(rigid.spring_a)):
+        w = weight(int(rigid.spring_a[j]), rigid.spring_point_a[j]) + \
+            weight(int(rigid.spring_b[j]), rigid.spring_point_b[j])
+        rates.append(math.sqrt(rigid.spring_k[j] * w))
+        rates.append(rigid.spring_c[j] * w)
+    rates.extend(rigid.body_lin_damping.tolist() + rigid.body_ang_damping.tolist())
+    if any(kind == BODY_DYNAMIC for kind in kinds):
+        rates.append(math.sqrt(norm(gravity) / length_m))
+    return float(max(rates))
 
 
 def angular_velocity(rigid: RigidModel, R: np.ndarray, L: np.ndarray,

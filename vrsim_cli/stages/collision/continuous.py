@@ -83,6 +83,27 @@ def _closed_form(cm, ta, tb, pa, pb, va, vb, ia, ib, dt):
     return np.where(toi <= dt, toi, np.where(np.isnan(toi), np.nan, np.inf))
 
 
+def approach_bound(cm, before, after, ia, ib) -> np.ndarray:
+    """(P,) m/s: a bound on how fast any surface point of geom ia can approach geom ib
+    while the bodies move from `before` to `after`: the larger of the two ends' relative
+    speed |v_B - v_A| (for constant accelerations |v(t)| is convex, so its maximum over
+    the step is at an end) plus |w| R for each turning body (R its bounding radius about
+    the body's origin, |w| the larger of the two ends'). Conservative advancement along
+    the integrator's own path steps by distance / bound."""
+    ba, bb = cm.geom_body[ia], cm.geom_body[ib]
+    rel = max_norm(before.body_vel[bb] - before.body_vel[ba],
+                   after.body_vel[bb] - after.body_vel[ba])
+    for g, body in ((ia, ba), (ib, bb)):
+        w = max_norm(before.body_angvel[body], after.body_angvel[body])
+        # planes have an infinite bounding radius but never turn: 0 * inf must not be NaN
+        rel = rel + w * np.where(w > 0.0, cm.geom_rbound[g], 0.0)
+    return rel
+
+
+def max_norm(a, b) -> np.ndarray:
+    return np.maximum(np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1))
+
+
 def pair_distance(cm, world, ia, ib):
     """Distance (P,) of geom pairs (<= 0 when they touch): closed forms; for box pairs the
     exact corner/edge distance (the separating-axis gap is only a lower bound); fcl's

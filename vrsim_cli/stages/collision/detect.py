@@ -1,7 +1,7 @@
 """Loop stage 2.3, detection (slide 5.4.1): broad phase -> narrow phase -> contacts.
 
 Pure functions of model and state: `detect(model, state) -> Contacts` finds the contacts
-of one state; `step(model, before, after) -> Contacts` is what the loop calls after each
+of one state; `start_overlaps(model, state)` the bodies that start inside each other; `step(model, before, after) -> Contacts` is what the loop calls after each
 physics step: the contacts of `after` plus, with `collision.continuous`, the pairs that
 touched during the step but not at its end (`continuous.swept_contacts`).
 
@@ -30,6 +30,19 @@ def detect(model, state, margin: float | None = None, world=None) -> Contacts:
     ia, ib = broad_phase(model, *aabbs(cm, world), state.step)
     contacts = to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, margin))
     return planar(contacts) if model.dimension == 2 else contacts
+
+
+def start_overlaps(model, state, n_scene: int) -> list[tuple[int, int, float]]:
+    """Pairs of the first n_scene bodies (the scene's, not emitted particles) that
+    interpenetrate deeper than collision.tolerance in `state` (the run's first): (body
+    a, body b, depth m), deepest first. Collision response would push them apart at
+    whatever speed the overlap asks for: the scene is wrong, not the integration."""
+    found = detect(model, state)
+    deepest: dict = {}
+    for a, b, d in zip(found.body_a.tolist(), found.body_b.tolist(), found.depth.tolist()):
+        if a < n_scene and b < n_scene and d > model.collision.tolerance:
+            deepest[(a, b)] = max(d, deepest.get((a, b), 0.0))
+    return sorted(((a, b, d) for (a, b), d in deepest.items()), key=lambda x: -x[2])
 
 
 def step(model, before, after) -> Contacts:

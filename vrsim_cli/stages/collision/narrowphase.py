@@ -392,6 +392,41 @@ def _reduce(points, depth, keep: int = 4):
     return sorted(chosen)
 
 
+def _sat(world, ia, ib, hb=None):
+    """The 15 separating axes of box pairs (P, 15, 3) (unit; 3 + 3 face normals, 9 edge
+    crosses), the centres' distance along them (P, 15) and the overlap of the two
+    projections (P, 15) m (inf for the cross of parallel edges: no axis). hb: B's half
+    extents (P, 3) if not its geoms' (a segment is a box of half extents (0, l, 0))."""
+    A, B = world.rot[ia], world.rot[ib]  # columns: box axes in world
+    ha, hb = world.half[ia], (world.half[ib] if hb is None else hb)
+    t = world.pos[ib] - world.pos[ia]
+    a_axes, b_axes = np.swapaxes(A, 1, 2), np.swapaxes(B, 1, 2)  # rows: the axes
+    edges = np.cross(a_axes[:, :, None, :], b_axes[:, None, :, :]).reshape(-1, 9, 3)
+    L = np.concatenate([a_axes, b_axes, edges], axis=1)  # (P, 15, 3)
+    L, length = _unit(L)
+    ra = np.einsum("pk,pkn->pn", ha, np.abs(np.einsum("pik,pni->pkn", A, L)))
+    rb = np.einsum("pk,pkn->pn", hb, np.abs(np.einsum("pik,pni->pkn", B, L)))
+    dist = _dot(t[:, None, :], L)
+    overlap = ra + rb - np.abs(dist)
+    overlap[:, 6:][length[:, 6:] < 1e-6] = np.inf  # parallel edges: no axis
+    return L, dist, overlap
+
+
+def box_box_separation(world, ia, ib) -> np.ndarray:
+    """(P,) m: the largest separation of box pairs along the 15 axes, <= 0 exactly when
+    they touch or overlap (separating-axis theorem), and never more than their distance
+    (a projection): a conservative gap, without the contact manifold."""
+    return -_sat(world, ia, ib)[2].min(axis=1)
+
+
+def box_capsule_separation(cm, world, ia, ib) -> np.ndarray:
+    """(P,) m: a lower bound on the distance of boxes ia and capsules ib (the boxes'
+    separation from the capsules' core segments, minus the radius); cheap, for
+    conservative advancement; not 0 exactly at the touch."""
+    core = world.half[ib] * np.array([0.0, 1.0, 0.0])
+    return -_sat(world, ia, ib, core)[2].min(axis=1) - cm.geom_radius[ib]
+
+
 def box_box(cm, world, ia, ib, margin):
     """Separating-axis test over the 15 axes (3 + 3 face normals, 9 edge crosses), then a
     contact manifold: face contact -> the overlap of the reference face and the incident
@@ -402,18 +437,7 @@ def box_box(cm, world, ia, ib, margin):
     ca, cb = world.pos[ia], world.pos[ib]
     A, B = world.rot[ia], world.rot[ib]  # columns: box axes in world
     ha, hb = world.half[ia], world.half[ib]
-    t = cb - ca
-    axes = [A[:, :, i] for i in range(3)] + [B[:, :, j] for j in range(3)]
-    for i in range(3):
-        for j in range(3):
-            axes.append(np.cross(A[:, :, i], B[:, :, j]))
-    L = np.stack(axes, axis=1)  # (P, 15, 3)
-    L, length = _unit(L)
-    ra = np.einsum("pk,pkn->pn", ha, np.abs(np.einsum("pik,pni->pkn", A, L)))
-    rb = np.einsum("pk,pkn->pn", hb, np.abs(np.einsum("pik,pni->pkn", B, L)))
-    dist = _dot(t[:, None, :], L)
-    overlap = ra + rb - np.abs(dist)
-    overlap[:, 6:][length[:, 6:] < 1e-6] = np.inf  # parallel edges: no axis
+    L, dist, overlap = _sat(world, ia, ib)
     face = np.argmin(overlap[:, :6], axis=1)
     edge = 6 + np.argmin(overlap[:, 6:], axis=1)
     rows = np.arange(P)

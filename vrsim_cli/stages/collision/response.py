@@ -16,9 +16,11 @@
    a plane is a quadratic in tau whose root is found to round-off: bounce times and apex
    heights h_k = h0 eps^(2k) are exact at any dt. (euler and symplectic-euler are not
    exact in free flight, O(dt), whatever the response does.) When the pairs are apart
-   again at the step's end (swept through, or a ball that bounced and lands again), G is
-   sampled at 16 points of the step for the first overlap, which then closes the bracket
-   (an overlap shorter than dt/16 can be missed; it is then a resting contact).
+   again at the step's end (swept through a thin wall, or a ball that bounced and lands
+   again), or a body turning about the point it just hit may hit with another, the
+   bracket comes from conservative advancement along the integrator's path (Mirtich
+   1996; `_march`), which uses continuous detection's time of impact and cannot step
+   over an overlap deeper than the collision tolerance: fast bodies do not tunnel.
 2. **Resting contact** at the end of the step: sequential impulses with friction and warm
    starting, shock propagation and position correction (`solver.solve_resting`,
    `solver.correct_positions`).
@@ -41,20 +43,23 @@ import numpy as np
 from vrsim_cli.maths.products import dot, matmul
 
 from vrsim_cli.maths.rotation import cross, exp_so3, quat_from_matrix
-from vrsim_cli.model.collision import BOX
+from vrsim_cli.model.collision import BOX, CAPSULE
 from vrsim_cli.model.model import BODY_DYNAMIC
 from vrsim_cli.model.response import IMPULSE, NONE, SLIDE, STOP
 from vrsim_cli.stages.collision import solver
 from vrsim_cli.stages.collision.broadphase import broad_phase
 from vrsim_cli.stages.collision.contacts import Contacts, planar, to_contacts
-from vrsim_cli.stages.collision.continuous import pair_distance, swept_contacts
-from vrsim_cli.stages.collision.narrowphase import narrow_phase
+from vrsim_cli.stages.collision.continuous import (approach_bound, pair_distance,
+                                                    swept_contacts)
+from vrsim_cli.stages.collision.narrowphase import (box_box_separation,
+                                                     box_capsule_separation, narrow_phase)
 from vrsim_cli.stages.collision.shapes import aabbs, place
 
 MAX_EVENTS = 64  # impacts located per step; later ones in the step go to the resting solver
 ROOT_ITERATIONS = 200
 ROOT_TOLERANCE = 1e-13  # of the step: the time of impact is found to this fraction
-LEAVE_SAMPLES = 16  # a pair that just bounced is looked for apart at h/16, 2h/16, ...
+MARCH_STEPS = 1024  # conservative-advancement steps along the path before sampling the rest
+LEAVE_SAMPLES = 16  # samples of the rest of the step after MARCH_STEPS
 WARM_RADIUS = 0.02  # m: a contact within this of last step's (same pair) inherits its impulse
 
 
@@ -111,8 +116,12 @@ def write_back(model, state, bodies: solver.Bodies, stopped=None, dpos=None, dth
         if stopped is not None:
             L = np.where(stopped[idx, None] & free[:, None], 0.0, L)
         if dtheta is not None and np.abs(dtheta[idx]).max() > 0.0:
-            turn = np.where(free[:, None], dtheta[idx], 0.0)
-            R = matmul(exp_so3(turn), R)
+            # A position correction moves the body, it does not push it: L turns with it
+            # (the body-frame angular momentum is kept), so 1/2 L.I^-1 L, the kinetic
+            # energy, is unchanged; keeping the world L changed it.
+            turn = exp_so3(np.where(free[:, None], dtheta[idx], 0.0))
+            R = matmul(turn, R)
+            L = np.einsum("kij,kj->ki", turn, L)
             quat = quat.copy()
             quat[idx] = quat_from_matrix(R)
         inv = matmul(matmul(R, rigid.rot_inv_inertia), np.swapaxes(R, -1, -2))
@@ -188,18 +197,29 @@ def _pair_geoms(model, a, b):
     return body_geom[a], body_geom[b]
 
 
-def _signed_gaps(cm, world, ia, ib):
+def _signed_gaps(cm, world, ia, ib, separation=False):
     """Signed gap (P,) m of geom pairs, <= 0 exactly when they touch or overlap (only the
     sign and continuity matter for the root): detection's pair distance, but box pairs
     through the separating-axis test (its largest separation is 0 exactly at the touch),
-    which agrees with fcl where the corner/edge distance does not."""
+    which agrees with fcl where the corner/edge distance does not. `separation`: box
+    pairs by the separation alone (`narrowphase.box_box_separation`, no manifold: a
+    lower bound on their distance, as conservative advancement needs, and ~10x cheaper)."""
     boxes = (cm.geom_type[ia] == BOX) & (cm.geom_type[ib] == BOX)
     d = np.full(len(ia), np.inf)
-    rest = np.flatnonzero(~boxes)
+    rest = ~boxes
+    if separation:  # box-capsule: the exact distance only where a cheap bound is <= 0
+        for box, cap in ((ia, ib), (ib, ia)):
+            sel = np.flatnonzero((cm.geom_type[box] == BOX) & (cm.geom_type[cap] == CAPSULE))
+            if len(sel):
+                d[sel] = box_capsule_separation(cm, world, box[sel], cap[sel])
+                rest[sel[d[sel] > 0.0]] = False
+    rest = np.flatnonzero(rest)
     if len(rest):
         d[rest] = pair_distance(cm, world, ia[rest], ib[rest])
     sat = np.flatnonzero(boxes)
-    if len(sat):
+    if len(sat) and separation:
+        d[sat] = box_box_separation(world, ia[sat], ib[sat])
+    elif len(sat):
         pair, _, _, depth = narrow_phase(cm, world, ia[sat], ib[sat], np.inf)
         np.minimum.at(d, sat[pair], -depth)
     return d
@@ -209,74 +229,141 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
     """Time tau in [0, h] of the first impact of the motion from s (free flight to `end`),
     or None. Candidates: pairs penetrating at the end that did not touch at s; touching
     pairs approaching faster than rest_speed (impact now or soon); touching pairs leaving
-    faster than rest_speed (a ball that just bounced may land again within the step);
-    pairs swept through (continuous detection). c0, c1: the contacts of s and `end` when
-    the caller has them."""
+    faster than rest_speed (a ball that just bounced may land again within the step), and
+    touching pairs that are apart at the end (a box that turned about the corner it just
+    hit may hit with another corner, or pass through a thin wall); pairs swept through
+    (continuous detection). c0, c1: the contacts of s and `end` when the caller has them.
+
+    The bracket of the root: [0, h] when every candidate is apart at 0, some overlap at h
+    and continuous detection found no pair swept through (the exact bounce). Otherwise
+    conservative advancement along the integrator's path (`_march`), which takes
+    continuous detection's time of impact (found on the step's chord) as a lower bound
+    for its pair: no overlap deeper than the tolerance is stepped over, however fast
+    the bodies and however thin the obstacle."""
     rm, cm = model.response, model.collision
     c1 = detect(model, end) if c1 is None else c1
     pairs = []
-    fast, leaving = set(), set()
+    fast, leaving, still = set(), set(), set()
     if touching:
         c0 = detect(model, s) if c0 is None else c0
         keep = np.flatnonzero(_modes(model, c0) != NONE)
         if len(keep):
-            vn = _approach(bodies_of(model, s), c0, keep)
-            for k, v in zip(keep.tolist(), vn.tolist()):
+            bodies = bodies_of(model, s)
+            vn = _approach(bodies, c0, keep)
+            # Without gravity rest_speed is 0: the round-off left by a plastic impact
+            # (relative to the bodies' speeds) is neither approaching nor leaving.
+            speed = np.linalg.norm(bodies.vel, axis=1)
+            slow = np.maximum(rm.rest_speed, solver.APPROACH_EPS * (
+                1.0 + speed[c0.body_a[keep]] + speed[c0.body_b[keep]]))
+            for k, v, u in zip(keep.tolist(), vn.tolist(), slow.tolist()):
                 pair = (int(c0.body_a[k]), int(c0.body_b[k]))
-                if v < -rm.rest_speed:
+                if v < -u:
                     fast.add(pair)
-                elif v > rm.rest_speed:
+                elif v > u:
                     leaving.add(pair)
+                else:
+                    still.add(pair)
     leaving -= fast
     mode1 = _modes(model, c1)
+    # A touching pair that neither approached nor left (it turns about the point it just
+    # hit, or rests) and at the end is apart or deeper than the tolerance may have hit
+    # with another point (a box's next corner, or through a thin wall): it takes part
+    # once its gap has opened beyond its gap at the start (a resting contact that sinks
+    # under gravity never does).
+    end_depth = {}
+    for k in np.flatnonzero(mode1 != NONE).tolist():
+        pair = (int(c1.body_a[k]), int(c1.body_b[k]))
+        end_depth[pair] = max(end_depth.get(pair, -np.inf), float(c1.depth[k]))
+    turning = {p for p in still - fast - leaving
+               if end_depth.get(p, np.inf) > cm.tolerance}
+    pairs.extend(leaving | turning)
     for k in np.flatnonzero((mode1 != NONE) & (c1.depth >= 0.0)).tolist():
         pair = (int(c1.body_a[k]), int(c1.body_b[k]))
         if pair not in touching or pair in fast or pair in leaving:
             pairs.append(pair)
-    hi = h
+    swept_toi = {}
     if cm.continuous:
-        swept = swept_contacts(model, s, end, c1.pairs() | touching)
+        # (a pair within the tolerance at the end may be there after passing through)
+        inside = set(zip(c1.body_a[c1.depth >= 0.0].tolist(),
+                         c1.body_b[c1.depth >= 0.0].tolist()))
+        swept = swept_contacts(model, s, end, inside | touching)
         keep = np.flatnonzero(_modes(model, swept) != NONE)
         for k in keep.tolist():
-            pairs.append((int(swept.body_a[k]), int(swept.body_b[k])))
+            pair = (int(swept.body_a[k]), int(swept.body_b[k]))
+            pairs.append(pair)
+            swept_toi[pair] = min(float(swept.toi[k]), swept_toi.get(pair, np.inf))
     if not pairs:
         return None
     pairs = sorted(set(pairs))
     ia, ib = _pair_geoms(model, np.array([p[0] for p in pairs]), np.array([p[1] for p in
                                                                             pairs]))
 
-    def gaps(tau):
+    def gaps(tau, sel=slice(None), separation=False):
         st = s if tau == 0.0 else advance(model, s, tau)
-        return _signed_gaps(cm, place(cm, st.body_pos, st.body_quat), ia, ib)
+        return _signed_gaps(cm, place(cm, st.body_pos, st.body_quat), ia[sel], ib[sel],
+                            separation)
 
-    def gap(tau):
-        return float(gaps(tau).min())
+    def separations(tau, sel=slice(None)):
+        return gaps(tau, sel, True)
 
     d0 = gaps(0.0)
-    back = np.array([p in leaving for p in pairs])
+    back = np.array([p in leaving or p in turning for p in pairs])
     if (d0[~back] <= 0.0).any():
         return 0.0
-    lo, g_lo = 0.0, float(d0.min())
-    if g_lo <= 0.0:  # a leaving pair still touches: find when it is apart, then the root
-        for j in range(1, LEAVE_SAMPLES + 1):
-            lo = h * j / LEAVE_SAMPLES
-            g_lo = gap(lo)
-            if g_lo > 0.0:
-                break
-        else:
+    if not swept_toi and (d0 > 0.0).all():
+        g_hi = float(gaps(h).min())
+        if g_hi <= 0.0:
+            return _root(lambda t: float(gaps(t).min()), 0.0, float(d0.min()), h, g_hi, h)
+    toi = np.array([swept_toi.get(p, 0.0) for p in pairs])
+    mu = approach_bound(cm, s, end, ia, ib)
+    sep0 = separations(0.0)
+    turns = np.array([p in turning for p in pairs])
+    arm = np.where(back, np.where(turns, np.maximum(sep0, 0.0), 0.0), -np.inf)
+    bracket = _march(separations, sep0, arm, toi, h, mu, cm.tolerance)
+    if bracket is None:
+        return None
+    sel, lo, g_lo, hi, g_hi = bracket
+    return _root(lambda t: float(separations(t, sel).min()), lo, g_lo, hi, g_hi, h)
+
+
+def _march(gaps, d0, arm, toi, h, mu, tol):
+    """Conservative advancement (Mirtich 1996) along the integrator's path to the first
+    overlap of a candidate pair. From t, where every pair taking part is apart (gaps
+    d_i > 0), pair i cannot touch before t + max(d_i, tol) / mu_i (mu_i:
+    `continuous.approach_bound`; the gap closes by at most max(d_i, tol) in that time, so
+    an overlap deeper than `tol` is never stepped over), nor before toi_i, continuous
+    detection's time of impact (found on the step's chord; 0 when it found none); the
+    march steps to the earliest of these. A pair takes part once its gap exceeds arm_i
+    (-inf: from the start; 0: a pair touching at 0 and leaving, once apart; its gap at 0:
+    a touching pair that neither approached nor left). Returns (pairs taking part, lo,
+    G(lo) > 0, hi, G(hi) <= 0), G their least gap, or None (no overlap within h)."""
+    t, d = 0.0, d0
+    armed = d0 > arm
+    for _ in range(MARCH_STEPS):
+        with np.errstate(divide="ignore"):
+            step = np.where(mu > 0.0, np.maximum(np.where(armed, d, 0.0), tol) / mu, np.inf)
+        t_next = min(float(np.maximum(t + step, toi).min()), h)
+        d_next = gaps(t_next)
+        if (armed & (d_next <= 0.0)).any():
+            sel = np.flatnonzero(armed)
+            return (sel, t, float(d[sel].min()), t_next, float(d_next[sel].min()))
+        armed |= d_next > arm
+        t, d = t_next, d_next
+        if t >= h:
             return None
-    g_hi = gap(hi)
-    if g_hi > 0.0:  # apart at hi (swept through, or a leaving pair not back): look for
-        start = lo  # the first sample of the step at which they overlap
-        for j in range(1, LEAVE_SAMPLES + 1):
-            t = start + (h - start) * j / LEAVE_SAMPLES
-            g = gap(t)
-            if g <= 0.0:
-                hi, g_hi = t, g
-                break
-            lo, g_lo = t, g
-        else:
-            return None  # they pass within the tolerance without touching
+    # very slow progress (a pair skimming past within the tolerance): sample the rest
+    sel = np.flatnonzero(armed)
+    for j in range(1, LEAVE_SAMPLES + 1):
+        t_next = t + (h - t) * j / LEAVE_SAMPLES
+        d_next = gaps(t_next, sel)
+        if (d_next <= 0.0).any():
+            return (sel, t, float(d[sel].min()), t_next, float(d_next.min()))
+    return None
+
+
+def _root(gap, lo, g_lo, hi, g_hi, h):
+    """The root of gap in [lo, hi] (gap(lo) > 0 >= gap(hi)) to ROOT_TOLERANCE * h, by the
+    Illinois variant of regula falsi; returns its upper end (overlapping or touching)."""
     side = 0
     for _ in range(ROOT_ITERATIONS):
         if hi - lo <= ROOT_TOLERANCE * h:  # (not at g = 0: a distance may be 0 for
@@ -355,13 +442,16 @@ def resting(model, start, state, last=None, c=None):
         rows = rows[~closing]
     dtheta = np.zeros((model.n_body, 3))
     if len(rows):
+        impulse[rows] += _missed_impacts(model, last, bodies, c, rows)
         sub = Contacts(*(getattr(c, f)[rows] for f in (
             "body_a", "body_b", "point", "normal", "depth", "toi")))
         cs = _contact_set(model, bodies, c, rows)
         warm = _warm_start(start, sub, model)
-        impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm)
+        kink = np.full((model.n_body, 4), np.nan)
+        impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm,
+                                             (last.body_vel, last.body_angvel), kink)
         dpos += _tangential_drift(model, last, state, bodies, c, rows[
-            np.abs(impulse[rows]).max(axis=1) > 0.0])
+            np.abs(impulse[rows]).max(axis=1) > 0.0], kink)
         dp, dth = solver.correct_positions(bodies, cs, rm.slop, rm.position_iterations)
         dpos += dp
         dtheta += dth
@@ -374,7 +464,33 @@ def resting(model, start, state, last=None, c=None):
     return new, c, impulse
 
 
-def _tangential_drift(model, last, state, bodies, c: Contacts, rows) -> np.ndarray:
+def _missed_impacts(model, last, bodies, c: Contacts, rows) -> np.ndarray:
+    """Impacts the event search did not locate, applied at the step's end with their
+    restitution (`solver.resolve_impacts`) instead of plastically by the resting solver:
+    contacts that penetrate at the step's end and approach faster than rest_speed both
+    now and at `last` (the step's start or its last impact; a body resting under gravity
+    approaches at g dt at the end but not at the start). Seen: a box whose second corner
+    reaches a wall in the step of the first corner's bounce lost 8 % of its energy in
+    that step. Returns the impulses (len(rows), 3) N s on B; changes `bodies`. (The
+    time of impact is lost: the body bounces up to a step late, penetrating; position
+    correction then pushes it out without changing its kinetic energy.)"""
+    rest = model.response.rest_speed
+    out = np.zeros((len(rows), 3))
+    fast = (c.depth[rows] >= 0.0) & (_approach(bodies, c, rows) < -rest) & \
+        (_approach(bodies_of(model, last), c, rows) < -rest)
+    if fast.any():
+        # with every touching contact of the bodies concerned: an impulse at one corner
+        # may drive another into the wall, which then takes its own (the impact rounds)
+        hit = np.unique(np.concatenate([c.body_a[rows[fast]], c.body_b[rows[fast]]]))
+        hit = hit[bodies.inv_mass[hit] > 0.0]
+        near = (c.depth[rows] >= 0.0) & (np.isin(c.body_a[rows], hit) |
+                                         np.isin(c.body_b[rows], hit))
+        out[near] = solver.resolve_impacts(bodies, _contact_set(model, bodies, c, rows[near]),
+                                           rest)
+    return out
+
+
+def _tangential_drift(model, last, state, bodies, c: Contacts, rows, kink=None) -> np.ndarray:
     """(n, 3) m: the translation that makes a body held by resting contact move along its
     contact surfaces as its corrected velocity says, not as the free flight did.
 
@@ -383,13 +499,21 @@ def _tangential_drift(model, last, state, bodies, c: Contacts, rows) -> np.ndarr
     g sin(th) h^2 / 2 per step before the resting impulses set its velocity to zero, and
     crept. Here its position along the surfaces is integrated again with the trapezoid of
     its velocity before and after the contact impulses, x = x_last + h (v_last + v) / 2,
-    exact for the constant accelerations of sticking and of sliding. Only the components
-    along the surfaces are replaced: along the normals the penetration pass decides."""
+    exact for the constant accelerations of sticking and of sliding. A body whose slip
+    stopped inside the step (`kink` (n, 4): fraction f of the step and velocity v_f then,
+    NaN elsewhere; solver._patch) has two ramps: x = x_last + f h (v_last + v_f) / 2 +
+    (1 - f) h (v_f + v) / 2. Only the components along the surfaces are replaced: along
+    the normals the penetration pass decides."""
     drift = np.zeros((model.n_body, 3))
     if not len(rows):
         return drift
     h = state.t - last.t
     moved = last.body_pos + (0.5 * h) * (last.body_vel + bodies.vel)
+    if kink is not None and np.isfinite(kink[:, 0]).any():
+        f = np.where(np.isfinite(kink[:, 0]), kink[:, 0], 1.0)[:, None]
+        v_f = np.where(np.isfinite(kink[:, 1:]), kink[:, 1:], bodies.vel)
+        moved = last.body_pos + (0.5 * h) * (f * (last.body_vel + v_f) +
+                                             (1.0 - f) * (v_f + bodies.vel))
     delta = moved - state.body_pos
     for body in np.unique(np.concatenate([c.body_a[rows], c.body_b[rows]])).tolist():
         if bodies.inv_mass[body] <= 0.0:

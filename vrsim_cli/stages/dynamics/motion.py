@@ -31,12 +31,22 @@ from vrsim_cli.maths.products import norm
 from vrsim_cli.model.model import BODY_DYNAMIC, Model
 from vrsim_cli.model.state import State
 
-# A conserving scene has blown up when its energy grew by more than this fraction of
-# (kinetic + |spring| energy now and at t = 0, + m|g| * 1 m per body): a free rotor whose
-# energy tripled, an oscillator whose amplitude grew by ~70 %. Honest integration errors
-# are orders of magnitude smaller; explicit Euler's exponential growth is not.
-ENERGY_GROWTH_LIMIT = 0.5
+# The energy guard (docs/dynamics.md, "Energy guard"; `kernels.dynamics.energy_bound`). In
+# a scene that conserves energy, the growth since the baseline may not pass
+#   scale * min(ENERGY_GROWTH_LIMIT, max(ENERGY_FLOOR, ENERGY_SAFETY (w dt)^p (1 + w tau)))
+# with p the integrator's order and w the scene's frequency scale. The error constants of
+# the five methods on the oscillator and the free rigid body are <= 1 (euler's energy
+# grows by (w dt)^2 a step: constant 1; symplectic-euler 1/2, verlet 1/8, rk4 < 1/100), so
+# ENERGY_SAFETY = 10 covers them with w underestimated by up to 10^(1/(p+1)) (w is a
+# scale, not the exact frequency). Whatever the order predicts, a conserving scene whose
+# energy grew by more than ENERGY_GROWTH_LIMIT (5 %) of its scale gives wrong numbers:
+# oscillation amplitudes off by 2.5 %, spins by 2.5 %; the run stops there.
+ENERGY_GROWTH_LIMIT = 0.05
+ENERGY_SAFETY = 10.0
+ENERGY_FLOOR = 1e-10  # relative: below this, rk4's (w dt)^4 meets round-off
+ENERGY_ROUND_OFF = 1e-12  # of m |g| |x|: the round-off of -m g.x far from the origin
 GRAVITY_SCALE_M = 1.0
+ORDER = {"euler": 1, "symplectic-euler": 1, "verlet": 2, "rk4": 4, "dopri5": 5}
 
 
 @dataclass(frozen=True)
@@ -92,6 +102,10 @@ def packed(model: Model) -> np.ndarray:
     param[kd.P_TOLERANCE] = 1e-6
     param[kd.P_WEIGHT] = float(mass.sum() * norm(model.gravity) * GRAVITY_SCALE_M)
     param[kd.P_GROWTH_LIMIT] = ENERGY_GROWTH_LIMIT
+    param[kd.P_SAFETY] = ENERGY_SAFETY
+    param[kd.P_FLOOR] = ENERGY_FLOOR
+    param[kd.P_ROUND_OFF] = ENERGY_ROUND_OFF
+    param[kd.P_ORDER] = ORDER[model.integrator]
     if rigid is not None:
         r = rigid.n_rot
         # The rigid part covers the scene's bodies; emitted particles come after them
@@ -136,6 +150,13 @@ def packed(model: Model) -> np.ndarray:
         param[kd.P_TOLERANCE] = rigid.tolerance
         param[kd.P_GUARD_FROM] = rigid.energy_guard_from
         param[kd.P_ENERGY0_SCALE] = rigid.energy0_scale
+        param[kd.P_OMEGA] = rigid.energy_omega
+        # nothing dissipates (no damping, no impacts): the energy may not fall either
+        param[kd.P_TWO_SIDED] = model.response is None and not (
+            rigid.body_lin_damping.any() or rigid.body_ang_damping.any()
+            or rigid.spring_c.any())
+        # dopri5: steps of (w h)^5 ~ tolerance, h = tol^(1/5) / w, tol^(-1/5) per radian
+        param[kd.P_STEPS_PER_TURN] = rigid.tolerance ** -0.2 if rigid.tolerance > 0 else 0.0
     counts = {"n": n, "r": len(rot), "f": nf, "k": len(torque), "s": len(spring)}
     mf = kd.pack(counts, {"body": body, "force": force, "torque": torque, "spring": spring,
                           "rot": rot}, param, free_flow.gauss_tables())
@@ -281,19 +302,39 @@ def energy(model: Model, state: State):
     m|v|^2/2 + L.omega/2, gravity -m g.x, a spring's k (l - l0)^2/2 split between its two
     bodies. Kinematic and static bodies count 0."""
     kd = _kernels()
+    S, RS = _rows(model, state)
+    out = np.zeros(model.n_body)
+    kinetic, spring = kd.body_energy(packed(model), S, RS, out)
+    return out, float(kinetic), float(spring)
+
+
+def energy_check(model: Model, state: State, baseline: np.ndarray):
+    """The energy guard of `state` against the per-body `baseline` (n,) J, as the
+    compiled run makes it: (-1 or the body whose energy changed most past the bound,
+    change J (< 0: a loss), bound J)."""
+    kd = _kernels()
+    S, RS = _rows(model, state)
+    tau = state.t - (model.rigid.energy_guard_from if model.rigid is not None else 0.0)
+    bad, gain, bound = kd.energy_check(packed(model), S, RS,
+                                       np.ascontiguousarray(baseline, dtype=float),
+                                       np.zeros(model.n_body), tau, model.dt)
+    return int(bad), float(gain), float(bound)
+
+
+def _rows(model: Model, state: State):
+    """The kernels' rows S (n, 13) and RS (r, 12) of `state` (positions, velocities, R, L)."""
+    kd = _kernels()
     if state.rot_matrix is None:
         R, L = np.zeros((0, 3, 3)), np.zeros((0, 3))
     else:
         R, L = state.rot_matrix, state.rot_angmom
-    out = np.zeros(model.n_body)
     S = np.zeros((model.n_body, kd.S_SIZE))
     S[:, kd.S_POS:kd.S_POS + 3] = state.body_pos
     S[:, kd.S_VEL:kd.S_VEL + 3] = state.body_vel
     RS = np.zeros((len(R), kd.RS_SIZE))
     RS[:, kd.RS_R:kd.RS_R + 9] = np.reshape(R, (-1, 9))
     RS[:, kd.RS_L:kd.RS_L + 3] = L
-    kinetic, spring = kd.body_energy(packed(model), S, RS, out)
-    return out, float(kinetic), float(spring)
+    return S, RS
 
 
 def _raise_underflow(model: Model, component: int, t: float):
