@@ -147,6 +147,8 @@ def test_every_moving_body_stays_in_view_and_large_enough(name, tmp_path):
     left = {model.body_name[i] for i in np.flatnonzero((moving & ~inside).any(axis=0))}
     if name == "collision":
         assert left == {"bullet"}  # 500 m/s: 5 m per frame
+    elif name == "bullet-walls":  # 400-600 m/s: the ball bounces off the walls at 300 m/s
+        assert left <= {"ball", "capsule"}, left
     elif name == "fountain":  # particles falling through the floor, no others
         assert left and all(n.startswith("drop.") for n in left)
     else:
