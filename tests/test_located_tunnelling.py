@@ -267,8 +267,29 @@ KNOWN = {("capsule", 0.0, False, 10): "a capsule at 805 m/s, eps 0, tunnels",
 # the closing notes.
 FULL = os.environ.get("VRSIM_SLOW_TESTS") == "1"
 RUN = [p for i, p in enumerate(SCENES) if FULL or i % 3 == 0 or p in KNOWN]
-PARAMS = [pytest.param(*p, marks=pytest.mark.xfail(strict=True, reason=KNOWN[p]))
-          if p in KNOWN else p for p in RUN]
+# Known energy gains (ε = 1, fast spinning boxes and capsules): the first impact obeys
+# the law, but afterwards the body gains energy (measured up to 61 %; second-corner
+# contacts while it spins off the wall), which the energy guard (issue 19) now stops
+# with exit 1. Found after merging the guard; open in issue 15 (item 4).
+GAINS = {("box", 1.0, False, 0), ("box", 1.0, False, 9), ("box", 1.0, True, 1),
+         ("capsule", 1.0, False, 3), ("capsule", 1.0, False, 6), ("capsule", 1.0, False, 9),
+         ("capsule", 1.0, False, 12), ("capsule", 1.0, True, 1)}
+# passed in one fresh-clone run (generic CPU build, other BLAS kernels), failed here
+FLAKY = {("capsule", 0.0, False, 13)}
+
+
+def _marks(p):
+    if p in GAINS:
+        from vrsim_cli.errors import SimulationError
+
+        return [pytest.mark.xfail(strict=True, raises=SimulationError,
+                                  reason="energy gain after the first impact")]
+    if p in KNOWN:
+        return [pytest.mark.xfail(strict=p not in FLAKY, reason=KNOWN[p])]
+    return []
+
+
+PARAMS = [pytest.param(*p, marks=_marks(p)) for p in RUN]
 
 
 @pytest.mark.parametrize("kind, eps, plates, k", PARAMS)
