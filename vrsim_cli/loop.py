@@ -37,6 +37,7 @@ from vrsim_cli.stages.dynamics import rigid
 from vrsim_cli.stages import scenegraph
 
 from vrsim_cli.errors import SimulationError
+from vrsim_cli.maths.products import norm
 from vrsim_cli.model.model import BODY_KINEMATIC, Model
 from vrsim_cli.model.state import State
 from vrsim_cli.stages import sensors
@@ -139,16 +140,16 @@ FREE_FLIGHT_SLACK = 1.5
 
 def in_free_flight(model: Model, state: State, body: int) -> bool:
     """Is `body`'s speed what a free flight from its start could reach by state.t?"""
-    speed = float(np.sqrt(np.einsum("i,i->", state.body_vel[body], state.body_vel[body])))
+    speed = norm(state.body_vel[body])
     if not np.isfinite(speed) or model.body_inv_mass[body] <= 0.0:
         return False
-    accel = float(np.sqrt(np.einsum("i,i->", model.gravity, model.gravity)))
+    accel = norm(model.gravity)
     mine = model.force_body == body
     if mine.any():
         accel += float(np.sqrt(np.einsum("ij,ij->i", model.force_vec[mine],
                                          model.force_vec[mine])).sum()
                        * model.body_inv_mass[body])
-    v0 = float(np.sqrt(np.einsum("i,i->", model.body_vel0[body], model.body_vel0[body])))
+    v0 = norm(model.body_vel0[body])
     return speed <= FREE_FLIGHT_SLACK * (v0 + accel * state.t) + 1.0
 
 
