@@ -463,7 +463,7 @@ def test_broad_phase_keeps_every_pair_the_narrow_phase_reports(seed):
 @pytest.mark.parametrize("seed", range(4))
 def test_expand_pairs_finds_the_pairs_of_the_plain_double_loop(seed):
     """kernels.stepped.expand_pairs (boxes sorted along x, unbounded ones apart) against
-    `_expand_pairs_all` (every grown geom against every geom): the same pairs in the same
+    `_expand_pairs_all` below (every grown geom against every geom): the same pairs in the same
     order, for random grown sets and random contact tables holding some pairs already."""
     from vrsim_cli.kernels import collide as kc
     from vrsim_cli.kernels import stepped as ks
@@ -486,9 +486,22 @@ def test_expand_pairs_finds_the_pairs_of_the_plain_double_loop(seed):
             K[r, ks.K_A], K[r, ks.K_B] = a, b
         k0 = len(known) - 5  # the last rows appended unsorted, as in later rounds
         P, m = ks.expand_pairs(gf, lo, hi, pad, 0, grown, K, k0, len(known))
-        R, mr = ks._expand_pairs_all(gf, lo, hi, pad, 0, grown, K, k0, len(known))
+        R, mr = _expand_pairs_all(gf, lo, hi, pad, 0, grown, K, k0, len(known))
         assert mr > 0 or not grown.any()
         assert m == mr and P[:m].tobytes() == R[:mr].tobytes(), trial
+
+
+def _expand_pairs_all(gf, lo, hi, pad, step, grown, K, k0, k):
+    """`expand_pairs` as the plain double loop over all geoms, in Python (the reference;
+    the pair test itself is the kernel's `_late_pair`)."""
+    from vrsim_cli.kernels import collide as kc
+    from vrsim_cli.kernels import stepped as ks
+
+    pairs = [(min(i, j), max(i, j)) for i in range(gf.shape[0])
+             if not (gf[i, kc.G_EMIT] > step or not grown[int(gf[i, kc.G_BODY])])
+             for j in range(gf.shape[0])
+             if ks._late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j)]
+    return np.array(pairs, np.int64).reshape(-1, 2), len(pairs)
 
 
 def _contact_table(text, steps):

@@ -1005,7 +1005,7 @@ def expand_pairs(gf, lo, hi, pad, step, grown, K, k0, k):
     """Candidate geom pairs of the bodies whose sweep grew (grown (n,) bool) against all
     geoms in the scene at `step`, whose boxes overlap (`kc._candidate`) and whose bodies
     have no contact in K yet. Returns (P, m), in the order of the plain double loop over
-    (i, j) (`_expand_pairs_all`, the reference): the contact rows of later rounds are
+    (i, j) (its reference in tests/test_stepped.py): the contact rows of later rounds are
     appended in that order and the solves visit them so. Each grown geom looks only at
     the geoms whose box starts within the widest box's width of its own along x (boxes
     sorted by their low x once per call) and at the unbounded ones (planes, NaN)."""
@@ -1062,23 +1062,6 @@ def expand_pairs(gf, lo, hi, pad, step, grown, K, k0, k):
             near[:cnt].sort()
         for e in range(cnt):
             j = near[e]
-            if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
-                P = kc._push_pair(P, m, i, j)
-                m += 1
-    return P, m
-
-
-@kernel
-def _expand_pairs_all(gf, lo, hi, pad, step, grown, K, k0, k):
-    """`expand_pairs` as the plain double loop over all geoms (its reference in the
-    tests)."""
-    n_geom = gf.shape[0]
-    P = np.empty((16, 2), np.int64)
-    m = np.int64(0)
-    for i in range(n_geom):
-        if gf[i, kc.G_EMIT] > step or not grown[int(gf[i, kc.G_BODY])]:
-            continue
-        for j in range(n_geom):
             if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
                 P = kc._push_pair(P, m, i, j)
                 m += 1
