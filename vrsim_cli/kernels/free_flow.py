@@ -24,11 +24,26 @@ STRIP = 0.8 * (0.5 * math.pi)  # half-width (in u) where the psi integrand is an
 PANEL = 1.0  # longest quadrature panel in u
 QUAD_EXPONENT = 20.0  # rho^(-2n) < 1e-20: the quadrature error is far below round-off
 MAX_NODES = 64
+_TABLES: list = []  # gauss_tables(), built once per process on first use
+
+
+def no_tables():
+    """Empty stand-ins for `gauss_tables` in a model without the exact flow: building
+    the tables costs ~30 ms (63 leggauss calls), a tenth of a small run's budget."""
+    return np.zeros(0), np.zeros(0), np.zeros(MAX_NODES + 2, np.int64)
 
 
 def gauss_tables():
     """Gauss-Legendre nodes on [0, 1] and weights summing to 1 for n = 2 .. MAX_NODES,
     packed: (x (total,), w (total,), start (MAX_NODES + 2,) offsets by n)."""
+    if not _TABLES:
+        for table in _build_tables():
+            table.flags.writeable = False  # shared by every model of the process
+            _TABLES.append(table)
+    return _TABLES[0], _TABLES[1], _TABLES[2]
+
+
+def _build_tables():
     start = np.zeros(MAX_NODES + 2, np.int64)
     xs, ws = [], []
     offset = 0
@@ -244,20 +259,15 @@ def _rotate_all(moments, Rp, L, h, gl_x, gl_w, gl_start, out):
         la.store33(out, i, q)
 
 
-_TABLES: list = []
-
-
 def exact_free_rotation(moments, Rp, L, h: float) -> np.ndarray:
     """Principal-frame orientations after time h of torque-free motion, for a stack of
     bodies: moments (k, 3) kg m^2 ascending; Rp (k, 3, 3) principal frame -> world; L
     (k, 3) kg m^2/s world angular momentum (constant); h s (any sign). Returns (k, 3, 3)
     Rp(h) with Rp(h)^T L the Jacobi solution (the kernel `free_rotation`, per body)."""
-    if not _TABLES:
-        _TABLES.extend(gauss_tables())
+    gl_x, gl_w, gl_start = gauss_tables()
     moments = np.ascontiguousarray(moments, dtype=float).reshape(-1, 3)
     Rp = np.ascontiguousarray(Rp, dtype=float).reshape(-1, 3, 3)
     L = np.ascontiguousarray(L, dtype=float).reshape(-1, 3)
     out = np.empty_like(Rp)
-    _rotate_all(moments, Rp, L, float(h), _TABLES[0], _TABLES[1],
-                _TABLES[2].astype(float), out)
+    _rotate_all(moments, Rp, L, float(h), gl_x, gl_w, gl_start.astype(float), out)
     return out

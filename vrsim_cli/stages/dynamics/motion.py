@@ -158,8 +158,10 @@ def packed(model: Model) -> np.ndarray:
         # dopri5: steps of (w h)^5 ~ tolerance, h = tol^(1/5) / w, tol^(-1/5) per radian
         param[kd.P_STEPS_PER_TURN] = rigid.tolerance ** -0.2 if rigid.tolerance > 0 else 0.0
     counts = {"n": n, "r": len(rot), "f": nf, "k": len(torque), "s": len(spring)}
+    # the quadrature tables only where the kernel reads them (P_EXACT_FLOW)
+    gl = free_flow.gauss_tables() if param[kd.P_EXACT_FLOW] else free_flow.no_tables()
     mf = kd.pack(counts, {"body": body, "force": force, "torque": torque, "spring": spring,
-                          "rot": rot}, param, free_flow.gauss_tables())
+                          "rot": rot}, param, gl)
     model.cache["dynamics"] = mf
     return mf
 
