@@ -454,7 +454,22 @@ _SCHEMA_TYPE = {"object": "a mapping", "array": "a list", "string": "a string",
                 "number": "a number", "integer": "a whole number", "boolean": "true or false"}
 
 
+@lru_cache(maxsize=1)
+def _quick_check():
+    """scene_schema() as a yes/no check that needs no jsonschema import (~0.1 s of every
+    run's start-up); None if the schema uses a keyword it does not model."""
+    from vrsim_cli.scene import schema_check
+
+    try:
+        return schema_check.compile_check(scene_schema())
+    except schema_check.Unsupported:
+        return None
+
+
 def _schema_problems(scene: Scene) -> Iterator[Problem]:
+    quick = _quick_check()
+    if quick is not None and quick(scene.data):
+        return  # valid: jsonschema is needed only to find and explain problems
     for err in _validator().iter_errors(scene.data):
         yield from _explain(scene, err)
 
