@@ -382,3 +382,35 @@ def test_compile_notice_reports_only_what_this_run_compiled(invoke, write_scene,
     result = invoke("run", scene, "-o", tmp_path / "o.csv")
     assert result.exit_code == 0
     assert "compiled in" not in result.stderr, result.stderr
+
+
+def test_the_collector_is_paused_for_start_up_only(tmp_path):
+    """`vrsim` (its entry point, `__main__.main`) pauses the garbage collector while
+    numpy, numba and the kernels load, and `vrsim run` turns it on, with start-up's
+    objects frozen, before the first step: a long run must not pile up cycles."""
+    import subprocess
+    import sys
+
+    child = f"""
+import gc, sys
+import vrsim_cli.loop as loop
+seen = []
+original = loop.run
+def spy(*args, **kwargs):
+    seen.append((gc.isenabled(), gc.get_freeze_count() > 0))
+    return original(*args, **kwargs)
+loop.run = spy
+sys.argv = ["vrsim", "run", {str(SCENARIOS / "projectile.yaml")!r}, "-q",
+            "-o", {str(tmp_path / "p.csv")!r}]
+from vrsim_cli.__main__ import main
+assert gc.isenabled()
+try:
+    main()
+except SystemExit as exc:
+    assert not exc.code, exc.code
+print(seen)
+"""
+    proc = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip().splitlines()[-1] == "[(True, True)]"

@@ -7,6 +7,7 @@ SIGINT/SIGTERM (the output is finalised first).
 from __future__ import annotations
 
 import contextlib
+import gc
 import json
 import math
 import signal
@@ -29,11 +30,26 @@ OUTPUT_FORMATS = tuple(scene_schema()["$defs"]["output"]["properties"]["format"]
 PROGRESS_AFTER_S = 1.0  # show a progress bar once a run has taken this long
 
 
-def _reports_errors(command):
-    """Turn VrsimError into a message on stderr and its exit code: never a traceback."""
+def start_collector() -> None:
+    """The end of start-up: the garbage collector, paused by `__main__.main` while the
+    imports run, is on again; what start-up created is frozen out of its passes (it
+    lives as long as the process). Idempotent."""
+    if not gc.isenabled():
+        gc.freeze()
+        gc.enable()
+
+
+def _reports_errors(command=None, *, starts_collector: bool = True):
+    """Turn VrsimError into a message on stderr and its exit code: never a traceback.
+    `starts_collector=False`: the command calls `start_collector` itself once its own
+    start-up (kernels) is done."""
+    if command is None:
+        return lambda c: _reports_errors(c, starts_collector=starts_collector)
 
     @wraps(command)
     def wrapper(*args, **kwargs):
+        if starts_collector:
+            start_collector()
         try:
             return command(*args, **kwargs)
         except InputError as exc:
@@ -200,7 +216,7 @@ def _output_target(output: str | None, fmt: str | None):
               help="Port of --live on 127.0.0.1 (0: any free port).")
 @click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary of "
               "the run (and nothing else on stdout).")
-@_reports_errors
+@_reports_errors(starts_collector=False)  # its start-up ends after the kernels load
 def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet,
         frames_dir, video, tolerance, live, live_port, as_json):
     """Run SCENE_FILE and write its trajectory."""
@@ -237,6 +253,7 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
                                "the trajectory there: give -o a file")
     with interrupts.held():  # numba calls back into Python: a signal waits for the end
         prepare_kernels(model, say)  # compiled once after an install; before any output
+    start_collector()
     server = None
     if live:
         from vrsim_cli.writers.live import LiveServer
@@ -395,6 +412,7 @@ def _subsampled(frames) -> str:
 @click.option("-q", "--quiet", is_flag=True, help="Print only problems.")
 def validate(scene_files, quiet):
     """Check scene files; report every problem with FILE:LINE:COL."""
+    start_collector()
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.scene.spec import load_scene
     from vrsim_cli.text import plural
