@@ -180,12 +180,15 @@ def _check_rows(rows, engine, methods):
 
 
 def test_quick_run_without_peers_gives_vrsim_rows_with_correct_figures(quick_alone):
-    assert {r.engine for r in quick_alone} == {"vrsim"}
+    assert {r.engine for r in quick_alone} == {"vrsim", "python"}
     _check_rows(quick_alone, "vrsim", fb.VRSIM_INTEGRATORS)
     assert fb.ratios(quick_alone) == []
-    (startup,) = [r for r in quick_alone if r.setting.startswith("start-up")]
+    startup, floor = [r for r in quick_alone if r.setting.startswith("start-up")]
     assert "warm cache" in startup.setting and startup.wall_s > 0
     assert startup.sanity["exit_code"] == 0
+    # the reference: a Python that imports numba and sets up its target, nothing else
+    assert floor.engine == "python" and "reference" in floor.setting
+    assert floor.sanity["exit_code"] == 0 and 0 < floor.wall_s
     # scenarios/projectile.yaml is rk4 under constant gravity: exact to round-off
     assert startup.sanity["position_error_m"] < 1e-9
 
@@ -194,7 +197,7 @@ def test_quick_run_without_peers_gives_vrsim_rows_with_correct_figures(quick_alo
                     "(pip install 'vrsim-cli[bench]')")
 def test_quick_run_with_mujoco_gives_the_same_figures_and_the_ratios(quick_with_peers):
     rows = quick_with_peers
-    assert {r.engine for r in rows} == {"vrsim", "mujoco"}
+    assert {r.engine for r in rows} == {"vrsim", "mujoco", "python"}
     _check_rows(rows, "vrsim", fb.VRSIM_INTEGRATORS)
     _check_rows(rows, "mujoco", fb.MUJOCO_INTEGRATORS)
     found = fb.ratios(rows)

@@ -359,12 +359,27 @@ def timed_run(scene: Path, out: Path, cache: str | None) -> tuple[float, int, st
     return time.perf_counter() - start, proc.returncode, proc.stderr
 
 
+NUMBA_FLOOR = ("import numba\nfrom numba.core.registry import cpu_target\n"
+               "cpu_target.target_context.refresh()")
+
+
+def timed_python(code: str) -> tuple[float, int]:
+    """(wall s, exit code) of `python -c code` with the environment of `timed_run`."""
+    env = dict(os.environ)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    start = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          timeout=300)
+    return time.perf_counter() - start, proc.returncode
+
+
 def startup_rows(quick: bool) -> list:
     """Rows `start-up: warm cache` (best of the repeats after a warm-up run, with the
     kernel cache of this process) and, in the full run, `start-up: empty cache` (one run
     with a new, empty cache folder: it compiles). steps: the scene's 1500; sanity: the
     exit code and the position error of the last CSV row against the closed form."""
     from vrsim_cli.kernels import jit
+    from vrsim_cli.tools.bench.problems import Row
 
     scene = _startup_scene()
     if scene is None:
@@ -380,6 +395,12 @@ def startup_rows(quick: bool) -> list:
         wall = min(r[0] for r in runs)
         code = max(r[1] for r in runs)
         rows.append(_startup_row("warm cache", wall, code, out))
+        # the floor on this machine, for context: a Python that only imports numba
+        # (numba imports numpy) and sets up its CPU target, as any numba kernel needs
+        floor = [timed_python(NUMBA_FLOOR) for _ in range(STARTUP_REPEATS[key])]
+        rows.append(Row(PROBLEM, "python", f"start-up: reference, `python -c` importing "
+                        f"numba and setting up its CPU target (no vrsim)", 1, 1,
+                        min(r[0] for r in floor), {"exit_code": max(r[1] for r in floor)}))
         if not quick:
             wall, code, _ = timed_run(scene, out, str(Path(tmp) / "empty-cache"))
             rows.append(_startup_row("empty cache (compiles)", wall, code, out))
@@ -476,7 +497,10 @@ def markdown(problem, rows) -> list[str]:
                           f"{e['mujoco']} {e['mujoco_us_per_step']:.3f}" for e in sphere)
                       + ".", ""]
     for r in rows:
-        if r.setting.startswith("start-up"):
+        if r.setting.startswith("start-up: reference"):
+            lines.append(f"Start-up, {r.setting[len('start-up: '):]}: {r.wall_s:.3f} s of "
+                         f"wall time (exit code {r.sanity['exit_code']}).")
+        elif r.setting.startswith("start-up"):
             lines.append(f"Start-up, {r.setting[len('start-up: '):]}: {r.wall_s:.3f} s of "
                          f"wall time (exit code {r.sanity['exit_code']}, final position "
                          f"error {r.sanity.get('position_error_m', math.nan):.2e} m).")
