@@ -153,3 +153,23 @@ def test_the_readme_python_example_runs(monkeypatch):
     scope: dict = {}
     exec(compile(block, "README.md", "exec"), scope)
     assert scope["traj"].position[:, scope["traj"].index("ball")].shape == (151, 3)
+
+
+@pytest.mark.parametrize("impacts", ["located", "stepped"])
+def test_bodies_that_start_inside_each_other_are_an_input_error(impacts):
+    """As `vrsim run` and `vrsim validate` refuse them (exit 2): the problem is located
+    at the second body's position and names both bodies."""
+    text = f"""vrsim: 1
+duration: 0.1
+collision: {{impacts: {impacts}}}
+bodies:
+  - {{name: a, mass: 1, shape: {{type: sphere, radius: 0.5}}, position: [0, 1, 0]}}
+  - {{name: b, mass: 1, shape: {{type: sphere, radius: 0.5}}, position: [0.3, 1, 0]}}
+"""
+    with pytest.raises(InputError) as caught:
+        vrsim_cli.load(text)
+    (problem,) = caught.value.problems
+    assert problem.line == 6 and problem.path == ("bodies", 1, "position")
+    assert "overlap at start" in problem.message and "'a'" in problem.message
+    # apart by 1 mm: loads
+    vrsim_cli.load(text.replace("[0.3, 1, 0]", "[1.001, 1, 0]"))

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from vrsim_cli.errors import InputError
-from vrsim_cli.loop import RunResult, run as run_loop
+from vrsim_cli.loop import RunResult, overlap_problems, run as run_loop
 from vrsim_cli.model.model import Model, compile_model
 from vrsim_cli.model.state import State, make_state, state_hash
 from vrsim_cli.scene.spec import load_scene, parse_scene
@@ -54,7 +54,7 @@ def load(source: str | os.PathLike, **overrides) -> Model:
 
     Keyword overrides as on the command line: duration (s), dt (s), integrator,
     tolerance. Problems raise `vrsim_cli.errors.InputError` with file:line:col, key path
-    and hint (its `.problems`). A scene's `output` keys are kept as settings only: the
+    and hint (its `.problems`), bodies that start inside each other included. A scene's `output` keys are kept as settings only: the
     API writes no files.
     """
     unknown = set(overrides) - set(OVERRIDES)
@@ -68,7 +68,13 @@ def load(source: str | os.PathLike, **overrides) -> Model:
     else:
         scene = parse_scene(source, "<text>", base_dir=Path.cwd())
     scene = scene.with_overrides({OVERRIDES[k]: (v, k) for k, v in overrides.items()})
-    return compile_model(scene)
+    model = compile_model(scene)
+    # as `vrsim run` and `vrsim validate`: bodies that start inside each other are an
+    # input error here, not a blow-up later
+    problems = overlap_problems(scene, model, make_state(model))
+    if problems:
+        raise InputError(problems)
+    return model
 
 
 @dataclass(frozen=True)
