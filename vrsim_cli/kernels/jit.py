@@ -17,6 +17,7 @@ First run: the first compilation of a run prints one line on stderr ("compiling 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import tempfile
@@ -142,6 +143,66 @@ def kernel(fn=None, *, inline: str = "never"):
     """Compile `fn` with numba: cached on disk, no fastmath, no parallel (fixed order).
     `inline="always"` for small helpers (3-vector algebra) that should cost nothing."""
     def wrap(f):
-        return numba.njit(cache=_CACHE["dir"] is not None, fastmath=False, inline=inline,
-                          error_model="numpy", nogil=True)(f)
+        d = numba.njit(cache=_CACHE["dir"] is not None, fastmath=False, inline=inline,
+                       error_model="numpy", nogil=True)(f)
+        if _CACHE["dir"] is not None and not JIT_DISABLED:
+            d._cache = _SafeFunctionCache(d.py_func)
+        return d
     return wrap if fn is None else wrap(fn)
+
+
+# ----------------------------------------------------------------------------- cache saves
+
+from numba.core import caching  # noqa: E402
+
+
+class _SafeIndexDataCacheFile(caching.IndexDataCacheFile):
+    """numba's cache file, safe for processes that save at the same time.
+
+    numba saves an entry by reading the function's index, picking the first data file
+    name the index does not use, writing the index, then the data. Two processes that
+    compile *different* variants of one function at once (a closure kernel made per
+    integrator, or another argument type) read the same index, pick the same name, and
+    the last index and the last data written can belong to different variants: a later
+    run then loads one variant's machine code for the other's key and computes wrong
+    numbers without any error (reproduced by tests/test_jit_cache.py). Here the read-
+    pick-write holds an exclusive lock on the folder's lock file, and the data is written
+    before the index names it, so a reader (which takes no lock) never finds a name
+    whose file is not yet this key's."""
+
+    def save(self, key, data):
+        with _folder_lock(self._cache_path):
+            overloads = self._load_index()
+            name = overloads.get(key)
+            if name is None:
+                taken = set(overloads.values())
+                number = 1
+                while self._data_name(number) in taken:
+                    number += 1
+                name = self._data_name(number)
+            self._save_data(name, data)
+            if overloads.get(key) != name:
+                overloads[key] = name
+                self._save_index(overloads)
+
+
+class _SafeFunctionCache(caching.FunctionCache):
+    def __init__(self, py_func):
+        super().__init__(py_func)
+        self._cache_file.__class__ = _SafeIndexDataCacheFile  # same state, safe save
+
+
+@contextlib.contextmanager
+def _folder_lock(folder: str):
+    """An exclusive advisory lock on `folder`/.vrsim-save.lock (POSIX; elsewhere none)."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: numba's own behaviour
+        yield
+        return
+    with open(os.path.join(folder, ".vrsim-save.lock"), "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)

@@ -1,0 +1,84 @@
+"""The kernel cache stays right when processes compile at the same time.
+
+numba's own cache save reads a function's index, picks the first free data-file name and
+writes index and data; two processes compiling different variants of one function (our
+closure kernels are made per integrator and pair kinds) pick the same name, and a later
+run can load one variant's machine code for the other: silently wrong numbers. The window
+is a few milliseconds, so the test widens it: every process sleeps after reading an index,
+and the first one writes its data late. Then a fresh process must load each variant from
+the cache (no compile) and get that variant's result. With numba's plain save this test
+fails (one variant computes the other's result: [1.0, 1.0]).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from vrsim_cli.kernels import jit
+
+MODULE = """
+from vrsim_cli.kernels.jit import kernel
+
+
+def make(k):
+    @kernel
+    def add(x):
+        return x + k
+    return add
+"""
+
+RACER = """
+import sys, time
+import vrsim_cli.kernels.jit  # first: it points numba's cache at VRSIM_CACHE_DIR
+import numba.core.caching as caching
+k = int(sys.argv[1])
+read, write = caching.IndexDataCacheFile._load_index, caching.IndexDataCacheFile._save_data
+
+def slow_read(self):
+    found = read(self)
+    time.sleep(1.0)  # both processes hold the same view of the index
+    return found
+
+def late_write(self, name, data):
+    time.sleep(2.0 if k == 1 else 0.0)  # variant 1's data lands last
+    return write(self, name, data)
+
+caching.IndexDataCacheFile._load_index = slow_read
+caching.IndexDataCacheFile._save_data = late_write
+import racemod
+print(racemod.make(k)(0.0))
+"""
+
+READER = """
+import racemod
+from vrsim_cli.kernels import jit
+out = [racemod.make(k)(0.0) for k in (1, 2)]
+print(out, jit.compile_report())
+"""
+
+
+@pytest.mark.skipif(jit.JIT_DISABLED, reason="no compiled code to cache with the JIT off")
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="the save lock is POSIX (fcntl)")
+def test_concurrent_saves_of_two_variants_keep_each_variants_code(tmp_path):
+    (tmp_path / "racemod.py").write_text(MODULE)
+    env = {**os.environ, "VRSIM_CACHE_DIR": str(tmp_path / "cache"),
+           "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    env.pop("NUMBA_CACHE_DIR", None)
+    racers = [subprocess.Popen([sys.executable, "-c", textwrap.dedent(RACER), str(k)],
+                               cwd=tmp_path, env=env, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True) for k in (1, 2)]
+    for k, proc in zip((1, 2), racers):
+        out, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err[-2000:]
+        assert float(out.split()[-1]) == k
+    proc = subprocess.run([sys.executable, "-c", READER], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    values, compiled = proc.stdout.strip().rsplit(" ", 1)
+    assert values == "[1.0, 2.0]"
+    assert float(compiled) == 0.0, "both variants should have come from the cache"
