@@ -67,6 +67,25 @@ def pytest_configure(config):
                                        f"{REQUIRE_OSMESA}=1")
 
 
+# The files that take longest (seconds of CPU on a fresh machine, most first: kernel
+# compiles, subprocesses, fuzzing), run first. xdist (`--dist loadfile
+# --no-loadscope-reorder`, pyproject.toml) hands out whole files in collection order as
+# workers free up, so long files first leaves only short ones for the end and the workers
+# finish together, rather than one running a long file alone while the other idles.
+LONGEST_FIRST = ("test_stepped.py", "test_cpu_independence.py", "test_memory.py",
+                 "test_hostile_input.py", "test_sweep.py", "test_hostile_schema.py",
+                 "test_located_tunnelling.py", "test_data_loss.py", "test_incline.py",
+                 "test_loop.py", "test_kernels.py", "test_bench.py", "test_golden.py",
+                 "test_collision_response.py", "test_guard.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Files of LONGEST_FIRST first, in that order; the order within a file and of the
+    other files is kept (a stable sort)."""
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
 def pytest_runtest_setup(item):
     if item.get_closest_marker("osmesa") is None:
         return
@@ -94,21 +113,106 @@ def write_scene(tmp_path):
     return write
 
 
-@pytest.fixture(scope="session")
-def _kernels_compiled():
-    """Compile (or load from the cache) every integrator's kernel once, before the first CLI
-    test: on a fresh machine the first run of each integrator prints a compile notice on
-    stderr, which tests that read stderr line by line must not depend on. The notice itself
-    is tested in test_cli.py."""
-    from vrsim_cli.kernels.dynamics import INTEGRATOR_CODES
+# ----------------------------------------------------------------------------- kernels
+# On a fresh machine (CI) the kernel cache is empty and compiling is the suite's largest
+# cost. The xdist workers share one cache folder (jit.cache_dir(), the user's default or
+# $VRSIM_CACHE_DIR, inherited by every subprocess a test starts), so a kernel compiled
+# once is loaded everywhere else; but workers that start at the same moment would all
+# compile the same kernels side by side. So each worker first compiles the WARM_UP units
+# (every integrator's kernel and every scenario's kernels, which the suite needs anyway)
+# under one lock file per unit: a unit another worker holds is skipped and then waited
+# for, so each unit is compiled once per session and the workers share the work. With a
+# warm cache this only loads kernels (~2 s per worker). It also keeps two processes from
+# writing different entries of one kernel's cache index at the same time (numba's index
+# update is a read-modify-write without a lock: one entry can be lost or, at worst, one
+# data file named for two entries).
+
+
+def _warm_integrator(name: str) -> None:
     from vrsim_cli.loop import prepare
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.scene.spec import parse_scene
 
-    for name in INTEGRATOR_CODES:
-        prepare(compile_model(parse_scene(
-            f"vrsim: 1\nname: warm\nduration: 0.1\ndt: 0.01\nintegrator: {name}\n"
-            "bodies: [{name: b, mass: 1.0}]\n")))
+    prepare(compile_model(parse_scene(
+        f"vrsim: 1\nname: warm\nduration: 0.1\ndt: 0.01\nintegrator: {name}\n"
+        "bodies: [{name: b, mass: 1.0}]\n")))
+
+
+def _warm_scenario(path: Path) -> None:
+    """0.2 s of the scenario: the kernels of its whole run (they depend on the scene's
+    kinds of bodies and pairs, not on its length), as test_cpu_independence runs it."""
+    from vrsim_cli.api import load
+    from vrsim_cli.loop import prepare, run
+    from vrsim_cli.model.state import make_state
+
+    model = load(path, duration=0.2)
+    prepare(model)
+    run(model, make_state(model), None)
+
+
+def warm_up_units() -> list:
+    """(name, callable) of the kernels every session compiles up front."""
+    from functools import partial
+
+    from vrsim_cli.kernels.dynamics import INTEGRATOR_CODES
+
+    return [(f"integrator-{name}", partial(_warm_integrator, name))
+            for name in INTEGRATOR_CODES] + \
+        [(f"scenario-{path.stem}", partial(_warm_scenario, path))
+         for path in sorted(SCENARIOS.glob("*.yaml"))]
+
+
+def warm_up(lock_dir: Path, worker: int, workers: int) -> list[str]:
+    """Compile (or load) every unit of `warm_up_units` that no other worker of this
+    session has: a first pass takes the units whose lock is free (worker k starts k/n of
+    the way down the list, so the workers start on different units), a second pass waits
+    for the rest to be done by whoever holds them. Returns the names this worker ran."""
+    import fcntl
+
+    units = warm_up_units()
+    start = len(units) * worker // max(workers, 1)
+    units = units[start:] + units[:start]
+    lock_dir.mkdir(parents=True, exist_ok=True)
+    ran, waiting = [], []
+    for blocking in (False, True):
+        for name, build in (units if not blocking else waiting):
+            with open(lock_dir / f"{name}.lock", "a+") as lock:
+                try:
+                    fcntl.flock(lock, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+                except BlockingIOError:
+                    waiting.append((name, build))
+                    continue
+                done = lock_dir / f"{name}.done"
+                if not done.exists():
+                    build()
+                    done.touch()
+                    ran.append(name)
+    return ran
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _warm_up_workers(request, tmp_path_factory):
+    """In an xdist worker of a session with several: every kernel of `warm_up_units` in
+    the cache before this worker's first test, the workers sharing the work (`warm_up`;
+    the lock files live in the session's temporary folder, the parent of each worker's
+    own). One process (`-n 0`, a pytest that a test starts) compiles only what its tests
+    use. (Not the PYTEST_XDIST_* variables: a child process inherits them.)"""
+    worker = getattr(request.config, "workerinput", None)
+    if worker is None or worker["workercount"] < 2:
+        return
+    warm_up(tmp_path_factory.getbasetemp().parent / "vrsim-warm-up",
+            int(worker["workerid"].removeprefix("gw")), worker["workercount"])
+
+
+@pytest.fixture(scope="session")
+def _kernels_compiled(tmp_path_factory, _warm_up_workers):
+    """Compile (or load from the cache) every integrator's kernel once, before the first CLI
+    test: on a fresh machine the first run of each integrator prints a compile notice on
+    stderr, which tests that read stderr line by line must not depend on. The notice itself
+    is tested in test_cli.py."""
+    for name, build in warm_up_units():
+        if name.startswith("integrator-"):
+            build()
 
 
 @pytest.fixture
