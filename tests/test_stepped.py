@@ -567,3 +567,32 @@ def test_solves_that_stop_at_a_fixed_point_give_the_bits_of_the_full_count(steps
                         np.empty((n, 3)), np.empty((n, 3)), fixed)
             out.append(b"".join(a.tobytes() for a in (K, U, Wv, DP, DL, S1, RS1)))
         assert out[0] == out[1], iterations
+
+
+@pytest.mark.parametrize("integ", ["euler", "symplectic-euler", "verlet", "rk4", "dopri5"])
+def test_a_stepped_entry_compiles_only_its_integrator(integ):
+    """First-compile time (issue 19: a first stepped run took 171-224 s under load): the
+    stepped entry of one integrator must not type the other integrators' steppers. numba
+    prunes branches on the closure's constants before typing; this runs its front end and
+    that pruning (no compile) and lists the `step_*` functions left in reachable code:
+    the scene's integrator, and symplectic Euler (the step of bodies that took an
+    impulse). Before the fix all five were reachable."""
+    from numba.core import ir
+    from numba.core.analysis import compute_cfg_from_blocks, dead_branch_prune
+    from numba.core.compiler import run_frontend
+
+    from vrsim_cli.kernels import dynamics as kd
+    from vrsim_cli.kernels import stepped as ks
+
+    code = kd.INTEGRATOR_CODES[integ]
+    fn = ks._make_entry(code, (True,) * len(ks.PAIR_KINDS)).py_func
+    fir = run_frontend(fn)
+    dead_branch_prune(fir, [None] * fn.__code__.co_argcount)
+    cfg = compute_cfg_from_blocks(fir.blocks)
+    live = set(fir.blocks) - set(cfg.dead_nodes())
+    steppers = {inst.value.attr for label in live for inst in fir.blocks[label].body
+                if isinstance(inst, ir.Assign) and isinstance(inst.value, ir.Expr)
+                and inst.value.op == "getattr" and inst.value.attr.startswith("step_")}
+    own = {"euler": "step_euler", "symplectic-euler": "step_symplectic",
+           "verlet": "step_verlet", "rk4": "step_rk4", "dopri5": "step_dopri5"}[integ]
+    assert steppers == {own, "step_symplectic"}

@@ -1,7 +1,7 @@
 """A hostile-input corpus for vrsim, run as real processes (issue 19, "Hostile inputs").
 
     python tests/hostile/corpus.py [--jobs 2] [--timeout 60] [--only CATEGORY ...]
-                                   [--limit N] [--report report.json] [--list]
+                                   [--limit N] [--report report.json] [--list] [--warm]
 
 Builds >= 2500 cases in the categories of the issue, each a folder with a scene (and
 meshes, sensor files, FIFOs, links, ...) and the `vrsim` invocations a user would type:
@@ -657,6 +657,50 @@ def limits_cases() -> list[Case]:
     return cases
 
 
+INTEGRATORS = ("euler", "symplectic-euler", "verlet", "rk4", "dopri5")
+
+
+def warm_scenes() -> dict:
+    """One scene of each kind whose kernels numba compiles on first use (--warm): the
+    bases, the base with each integrator, located and stepped, and the limits' stepped
+    stack and spheres. Run once before the cases so that a case's time is its own and not
+    a first compile's (the snapshot is a new folder, so the kernel cache is cold for it)."""
+    runnable = copy.deepcopy(BASE)  # the base itself stops at validation (an overlap)
+    runnable["bodies"][1]["position"] = [0, 1.5, 6]
+    scenes = {name: dump(base) for name, base in BASES.items()}
+    for integ in INTEGRATORS:
+        for impacts in ("located", "stepped"):
+            doc = copy.deepcopy(runnable)
+            doc["integrator"] = integ
+            doc["collision"]["impacts"] = impacts
+            scenes[f"base-{integ}-{impacts}"] = dump(doc)
+    boxes = [{"name": f"b{i}", "mass": 1, "shape": {"type": "box", "size": [1, 1, 1]},
+              "position": [0, 1.01 * i + 0.5, 0]} for i in range(30)]
+    boxes.append({"name": "floor", "type": "static", "shape": {"type": "plane",
+                                                               "normal": [0, 1, 0]}})
+    spheres = [{"name": f"s{i}", "mass": 1, "shape": {"type": "sphere", "radius": 0.4},
+                "position": [i % 10, 1 + i // 100, (i // 10) % 10]} for i in range(200)]
+    for name, bodies in (("boxes-stepped", boxes), ("spheres-stepped", spheres)):
+        scenes[name] = dump({"vrsim": 1, "duration": 0.02, "frame_rate": 100, "dt": 0.01,
+                             "collision": {"impacts": "stepped"}, "bodies": bodies})
+    return scenes
+
+
+def warm(root: Path, timeout: float) -> list:
+    """Run each warm scene once (spawned, one at a time): [{name, code, wall_s}]."""
+    done = []
+    for name, text in warm_scenes().items():
+        if STOP.is_set():
+            break
+        folder = root / "warm" / name / "w"
+        folder.mkdir(parents=True)
+        materialise(folder, with_mesh({"scene.yaml": text}))
+        result = spawn_invocation(folder, ["run", "scene.yaml", "-q"], timeout)
+        done.append({"name": name, "code": result["code"], "wall_s": result["wall_s"]})
+        print(f"warm {name}: code {result['code']}, {result['wall_s']:.1f} s", flush=True)
+    return done
+
+
 CATEGORIES = {"types": types_cases, "numbers": numbers_cases, "meshes": meshes_cases,
               "yaml": yaml_cases, "chains": chains_cases, "files": files_cases,
               "limits": limits_cases}
@@ -980,6 +1024,8 @@ def main(argv=None) -> int:
     parser.add_argument("--fork", action="store_true", help="fork each invocation from a "
                         "server that has imported vrsim (tests/hostile/forkserver.py) instead "
                         "of spawning `python -m vrsim_cli`: same checks, ~10x faster")
+    parser.add_argument("--warm", action="store_true", help="first run one scene of each "
+                        "kind (warm_scenes) so that kernels are compiled before the cases")
     parser.add_argument("--compare", nargs=2, type=Path, metavar=("A", "B"),
                         help="compare two reports invocation by invocation, run nothing")
     args = parser.parse_args(argv)
@@ -1049,6 +1095,9 @@ def main(argv=None) -> int:
     try:
         if STOP.is_set():  # a signal while the cases were built: report what was kept
             cases = []
+        if args.warm:
+            meta["warm"] = warm(root, 900.0)
+            start = time.perf_counter()
         with ThreadPoolExecutor(args.jobs) as pool:
             for i, case in enumerate(pool.map(lambda c: run_case(c, root, args.timeout,
                                                                  args.fork), cases), 1):

@@ -22,6 +22,7 @@ import os
 import sys
 import tempfile
 import time
+import types
 from pathlib import Path
 
 _CACHE: dict = {}  # "dir": Path | None, "note": str | None
@@ -100,6 +101,7 @@ def _import_numba():
 
 numba = _import_numba()
 from numba.core import event  # noqa: E402
+from numba.core import types as nbtypes  # noqa: E402
 
 
 class _CompileWatch(event.Listener):
@@ -141,14 +143,37 @@ def compile_report() -> float:
 
 def kernel(fn=None, *, inline: str = "never"):
     """Compile `fn` with numba: cached on disk, no fastmath, no parallel (fixed order).
-    `inline="always"` for small helpers (3-vector algebra) that should cost nothing."""
+    `inline="always"` for small helpers (3-vector algebra) that should cost nothing.
+    A call from one kernel to another is typed without literal constants (below)."""
     def wrap(f):
+        # no_cfunc_wrapper: the C-callable wrapper (for ctypes/cfunc use) is never used
+        # here, and generating it cost ~4 % of a first compile
         d = numba.njit(cache=_CACHE["dir"] is not None, fastmath=False, inline=inline,
-                       error_model="numpy", nogil=True)(f)
-        if _CACHE["dir"] is not None and not JIT_DISABLED:
-            d._cache = _SafeFunctionCache(d.py_func)
+                       error_model="numpy", nogil=True, no_cfunc_wrapper=True)(f)
+        if not JIT_DISABLED:
+            d.get_call_template = types.MethodType(_unliteral_call_template, d)
+            if _CACHE["dir"] is not None:
+                d._cache = _SafeFunctionCache(d.py_func)
         return d
     return wrap if fn is None else wrap(fn)
+
+
+def _unliteral_call_template(self, args, kws):
+    """numba types a call from compiled code to a dispatcher with the callers' literal
+    types: `put(K, i, K_N, v)` with a column constant compiled one copy of `put` per
+    column (18 of them, and 8 of `get`, in the stepped kernel), each a full compile of
+    ~0.3 s. Typed as plain ints first, a kernel compiles once per array layout; when that
+    does not type (a constant index into a heterogeneous tuple), the literal types are
+    used as before. The arithmetic is the same (the constant is folded by LLVM instead of
+    numba; no fastmath)."""
+    plain = tuple(nbtypes.unliteral(a) for a in args)
+    plain_kws = {k: nbtypes.unliteral(v) for k, v in kws.items()}
+    if plain != tuple(args) or plain_kws != kws:
+        try:
+            return type(self).get_call_template(self, plain, plain_kws)
+        except numba.core.errors.TypingError:
+            pass
+    return type(self).get_call_template(self, args, kws)
 
 
 # ----------------------------------------------------------------------------- cache saves
