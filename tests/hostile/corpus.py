@@ -93,8 +93,10 @@ BASE = {
          "position": [0, 1, 0], "velocity": [1, 2, 0], "color": [1, 0, 0],
          "forces": [{"force": [0, 5, 0], "start": 0.01, "end": 0.03}],
          "material": {"restitution": 0.5, "friction": 0.3}},
+        # apart from the ball (since start overlaps are an input error, a crate around
+        # the ball made every case stop at validation)
         {"name": "crate", "mass": 2, "shape": {"type": "box", "size": [1, 2, 3]},
-         "euler_deg": [0, 90, 0], "angular_velocity": [0, 1, 0],
+         "position": [0, 1.5, 6], "euler_deg": [0, 90, 0], "angular_velocity": [0, 1, 0],
          "damping": {"linear": 0.1, "angular": 0.1},
          "torques": [{"torque": [0, 1, 0], "start": 0, "end": 0.02}]},
         {"name": "top", "mass": 1, "orientation": [1, 0, 0, 0],
@@ -665,8 +667,7 @@ def warm_scenes() -> dict:
     bases, the base with each integrator, located and stepped, and the limits' stepped
     stack and spheres. Run once before the cases so that a case's time is its own and not
     a first compile's (the snapshot is a new folder, so the kernel cache is cold for it)."""
-    runnable = copy.deepcopy(BASE)  # the base itself stops at validation (an overlap)
-    runnable["bodies"][1]["position"] = [0, 1.5, 6]
+    runnable = copy.deepcopy(BASE)
     scenes = {name: dump(base) for name, base in BASES.items()}
     for integ in INTEGRATORS:
         for impacts in ("located", "stepped"):
