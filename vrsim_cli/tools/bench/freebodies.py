@@ -359,7 +359,10 @@ def timed_run(scene: Path, out: Path, cache: str | None) -> tuple[float, int, st
     return time.perf_counter() - start, proc.returncode, proc.stderr
 
 
-NUMBA_FLOOR = ("import numba\nfrom numba.core.registry import cpu_target\n"
+# as kernels/jit.py starts numba: without scipy's BLAS bindings (which would import all
+# of scipy.linalg)
+NUMBA_FLOOR = ("import sys\nsys.modules['scipy.linalg.cython_blas'] = None\n"
+               "import numba\nfrom numba.core.registry import cpu_target\n"
                "cpu_target.target_context.refresh()")
 
 
