@@ -90,6 +90,20 @@ def _quat(R):
     return q / np.linalg.norm(q)
 
 
+def _shape(rng, kind):
+    """(size, scene text of the shape, bounding radius m) of a random sphere (radius
+    0.02-0.3 m), box (sides 0.02-0.5 m) or capsule (radius 0.02-0.2 m, length 0.02-0.6 m)."""
+    if kind == "sphere":
+        size = [float(rng.uniform(0.02, 0.3))]
+        return size, f"{{type: sphere, radius: {size[0]!r}}}", size[0]
+    if kind == "box":
+        size = rng.uniform(0.02, 0.5, size=3).tolist()
+        return size, f"{{type: box, size: {size!r}}}", 0.5 * float(np.linalg.norm(size))
+    size = [float(rng.uniform(0.02, 0.2)), float(rng.uniform(0.02, 0.6))]
+    return (size, f"{{type: capsule, radius: {size[0]!r}, length: {size[1]!r}}}",
+            size[0] + 0.5 * size[1])
+
+
 def energy_cases(kind, eps, mu, count, seed):
     """(scene text, cases) with `count` cases, case c = bodies 2c (a static 1 cm wall,
     10 m square) and 2c + 1 (the body, 0.2-5 kg) that reaches the wall's face within
@@ -106,18 +120,7 @@ def energy_cases(kind, eps, mu, count, seed):
         qw = _unit_quat(rng)
         n = _rot(qw)[:, 2]  # the wall's thin axis, towards the body
         mass = float(np.exp(rng.uniform(np.log(0.2), np.log(5.0))))
-        if kind == "sphere":
-            size = [float(rng.uniform(0.02, 0.3))]
-            shape = f"{{type: sphere, radius: {size[0]!r}}}"
-            reach = size[0]
-        elif kind == "box":
-            size = rng.uniform(0.02, 0.5, size=3).tolist()
-            shape = f"{{type: box, size: {size!r}}}"
-            reach = 0.5 * float(np.linalg.norm(size))
-        else:
-            size = [float(rng.uniform(0.02, 0.2)), float(rng.uniform(0.02, 0.6))]
-            shape = f"{{type: capsule, radius: {size[0]!r}, length: {size[1]!r}}}"
-            reach = size[0] + 0.5 * size[1]
+        size, shape, reach = _shape(rng, kind)
         flat = kind != "sphere" and rng.random() < FLAT_FRACTION
         spin = float(rng.uniform(0.0, 300.0))
         if flat:  # parallel to the wall, turning about its normal only: stays parallel
@@ -271,6 +274,22 @@ def test_the_impact_solver_never_adds_kinetic_energy():
 # ------------------------------------------------------------------ the free flight after
 
 
+def _free_bodies(rng, count, motion):
+    """Scene lines and cases of `count` boxes and capsules (alternating, 0.2-5 kg, random
+    size and orientation) 10 m apart, with (velocity, angular velocity) = motion(rng)."""
+    lines, cases = [], []
+    for i in range(count):
+        kind = ("box", "capsule")[i % 2]
+        mass = float(rng.uniform(0.2, 5.0))
+        size, shape, _ = _shape(rng, kind)
+        v, w = motion(rng)
+        lines.append(f"  - {{name: b{i}, mass: {mass!r}, position: [{10.0 * i}, 0, 0], "
+                     f"orientation: {_unit_quat(rng).tolist()!r}, velocity: {v.tolist()!r}, "
+                     f"angular_velocity: {w.tolist()!r}, shape: {shape}}}")
+        cases.append(dict(body=i, mass=mass, inertia=inertia(kind, size, mass)))
+    return lines, cases
+
+
 @pytest.mark.parametrize("integrator, limit", [("symplectic-euler", 0.05), ("verlet", 0.2)])
 def test_a_body_turning_far_in_a_step_keeps_its_energy(integrator, limit):
     """After a fast impact a body turns up to ~30 rad per 10 ms step. The default free
@@ -282,24 +301,14 @@ def test_a_body_turning_far_in_a_step_keeps_its_energy(integrator, limit):
     rng = np.random.default_rng(19)
     lines = [f"vrsim: 1\nduration: {20 * DT}\nframe_rate: {1 / DT}\ndt: {DT}\n"
              f"integrator: {integrator}\ngravity: [0, 0, 0]\nbodies:"]
-    cases = []
-    for i in range(12):
-        kind = ("box", "capsule")[i % 2]
-        mass = float(rng.uniform(0.2, 5.0))
-        if kind == "box":
-            size = rng.uniform(0.02, 0.5, size=3).tolist()
-            shape = f"{{type: box, size: {size!r}}}"
-        else:
-            size = [float(rng.uniform(0.02, 0.2)), float(rng.uniform(0.02, 0.6))]
-            shape = f"{{type: capsule, radius: {size[0]!r}, length: {size[1]!r}}}"
+
+    def spin(rng):
         axis = rng.normal(size=3)
         turn = float(np.exp(rng.uniform(np.log(2.0 * limit), np.log(50.0))))  # rad/step
-        w = turn / DT * axis / np.linalg.norm(axis)
-        lines.append(f"  - {{name: b{i}, mass: {mass!r}, position: [{10.0 * i}, 0, 0], "
-                     f"orientation: {_unit_quat(rng).tolist()!r}, angular_velocity: "
-                     f"{w.tolist()!r}, shape: {shape}}}")
-        cases.append(dict(body=i, mass=mass, inertia=inertia(kind, size, mass)))
-    _, states, _ = simulate("\n".join(lines) + "\n")
+        return np.zeros(3), turn / DT * axis / np.linalg.norm(axis)
+
+    bodies, cases = _free_bodies(rng, 12, spin)
+    _, states, _ = simulate("\n".join(lines + bodies) + "\n")
     energy = np.array([kinetic(cases, s) for s in states])
     assert len(states) == 21
     worst = float(np.abs(energy / energy[0] - 1.0).max())
@@ -319,23 +328,13 @@ def test_position_correction_keeps_the_kinetic_energy():
     rng = np.random.default_rng(23)
     lines = [f"vrsim: 1\nduration: {DT}\ndt: {DT}\ngravity: [0, 0, 0]\ncollision: {{}}\n"
              f"bodies:"]
-    cases = []
-    for i in range(20):
-        kind = ("box", "capsule")[i % 2]
-        mass = float(rng.uniform(0.2, 5.0))
-        if kind == "box":
-            size = rng.uniform(0.02, 0.5, size=3).tolist()
-            shape = f"{{type: box, size: {size!r}}}"
-        else:
-            size = [float(rng.uniform(0.02, 0.2)), float(rng.uniform(0.02, 0.6))]
-            shape = f"{{type: capsule, radius: {size[0]!r}, length: {size[1]!r}}}"
+
+    def motion(rng):
         w = rng.normal(size=3) * rng.uniform(0.0, 300.0) / np.sqrt(3.0)
-        v = rng.normal(size=3) * rng.uniform(10.0, 1000.0) / np.sqrt(3.0)
-        lines.append(f"  - {{name: b{i}, mass: {mass!r}, position: [{10.0 * i}, 0, 0], "
-                     f"orientation: {_unit_quat(rng).tolist()!r}, velocity: {v.tolist()!r}, "
-                     f"angular_velocity: {w.tolist()!r}, shape: {shape}}}")
-        cases.append(dict(body=i, mass=mass, inertia=inertia(kind, size, mass)))
-    model = compile_model(parse_scene("\n".join(lines) + "\n"))
+        return rng.normal(size=3) * rng.uniform(10.0, 1000.0) / np.sqrt(3.0), w
+
+    bodies, cases = _free_bodies(rng, 20, motion)
+    model = compile_model(parse_scene("\n".join(lines + bodies) + "\n"))
     state = make_state(model)
     dpos = rng.normal(size=(model.n_body, 3)) * 1e-2
     axes = rng.normal(size=(model.n_body, 3))
