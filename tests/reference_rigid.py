@@ -54,6 +54,8 @@ from vrsim_cli.stages.dynamics.rigid import check  # the package's checks, not a
 # are orders of magnitude smaller; explicit Euler's exponential growth is not.
 ENERGY_GROWTH_LIMIT = 0.5
 GRAVITY_SCALE_M = 1.0
+# rad per drift: beyond these the exact flow (kernels/dynamics.py has the why)
+SPLIT_MAX_TURN_LIE_RAD, SPLIT_MAX_TURN_STRANG_RAD = 0.05, 0.2
 
 
 def forces(model: Model, t: float, x, v, R, L, mask, w=None):
@@ -164,7 +166,9 @@ def free_rotation(rigid: RigidModel, R, L, h: float, strang: bool):
     energy sum_i Lb_i^2 / (2 I_i) (principal body frame) into its three terms: each term's
     flow is an exact rotation of the body about principal axis i by h Lb_i / I_i
     (Lb_i is constant under it). Lie-Trotter (1, 2, 3) is order 1; Strang (1, 2, 3, 2, 1
-    with half steps outside) is order 2. (Kinematic bodies are turned exactly by `step`.)"""
+    with half steps outside) is order 2. (Kinematic bodies are turned exactly by `step`.)
+    Either way a body that turns by more than SPLIT_MAX_TURN_STRANG_RAD (Strang) or
+    SPLIT_MAX_TURN_LIE_RAD (Lie-Trotter) in h takes the exact flow."""
     Q = rigid.rot_axes
     Rp = R @ Q  # principal frame -> world
     if rigid.free_flow == "exact":
@@ -172,6 +176,14 @@ def free_rotation(rigid: RigidModel, R, L, h: float, strang: bool):
         return exact_free_rotation(rigid.rot_moments, Rp, L, h) @ np.swapaxes(Q, -1, -2)
     Lb = L[:, None, :] @ Rp  # (r, 1, 3): (Rp^T L)^T, a row per body
     rates = np.where(rigid.rot_kinematic[:, None], 0.0, 1.0 / rigid.rot_moments)
+    # A drift that turns a body farther than the splitting's limit takes the exact flow
+    # (kernels/dynamics.py).
+    limit = SPLIT_MAX_TURN_STRANG_RAD if strang else SPLIT_MAX_TURN_LIE_RAD
+    far = np.linalg.norm(Lb[:, 0, :] * rates, axis=1) * abs(h) > limit
+    m = rigid.rot_moments
+    far &= m[:, 2] - m[:, 0] > 1e-12 * m[:, 2]  # spherical bodies keep the splitting
+    exact = exact_free_rotation(rigid.rot_moments[far], Rp[far], L[far], h) \
+        if far.any() else None
     plan = [(0, 0.5 * h), (1, 0.5 * h), (2, h), (1, 0.5 * h), (0, 0.5 * h)] if strang \
         else [(0, h), (1, h), (2, h)]
     for axis, hh in plan:
@@ -179,6 +191,8 @@ def free_rotation(rigid: RigidModel, R, L, h: float, strang: bool):
         rot = axis_rotation(axis, (hh * rates[:, axis]) * Lb[:, 0, axis])
         Rp = Rp @ rot
         Lb = Lb @ rot
+    if exact is not None:
+        Rp[far] = exact
     return Rp @ np.swapaxes(Q, -1, -2)
 
 

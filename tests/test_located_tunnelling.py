@@ -258,32 +258,19 @@ WALLS, PLATES = (14, 6), (4, 7)  # (scenes, cases per scene)
 SCENES = [(kind, eps, plates, k) for kind in ("sphere", "box", "capsule")
           for eps in (0.0, 0.5, 1.0) for plates, (count, _) in ((False, WALLS), (True, PLATES))
           for k in range(count)]
-# Known failures (3 of the 1008 cases), strict: the day they pass, the mark must go.
-KNOWN = {("capsule", 0.0, False, 10): "a capsule at 805 m/s, eps 0, tunnels",
-         ("capsule", 0.0, False, 13): "a capsule's first impact is found 0.1 mm late",
+# Known failures (2 of the 1008 cases), strict: the day they pass, the mark must go.
+KNOWN = {("capsule", 0.0, False, 13): "a capsule's first impact is found 0.1 mm late",
          ("capsule", 0.0, True, 1): "a capsule at 661 m/s, eps 0, tunnels through a plate"}
 # The suite (CI) runs every third scene, the known failures among them (~1/3 of the
 # ~2.5 min of CPU the whole set takes); VRSIM_SLOW_TESTS=1 runs all 1008 cases, as for
 # the closing notes.
 FULL = os.environ.get("VRSIM_SLOW_TESTS") == "1"
 RUN = [p for i, p in enumerate(SCENES) if FULL or i % 3 == 0 or p in KNOWN]
-# Known energy gains (ε = 1, fast spinning boxes and capsules): the first impact obeys
-# the law, but afterwards the body gains energy (measured up to 61 %; second-corner
-# contacts while it spins off the wall), which the energy guard (issue 19) now stops
-# with exit 1. Found after merging the guard; open in issue 15 (item 4).
-GAINS = {("box", 1.0, False, 0), ("box", 1.0, False, 9), ("box", 1.0, True, 1),
-         ("capsule", 1.0, False, 3), ("capsule", 1.0, False, 6), ("capsule", 1.0, False, 9),
-         ("capsule", 1.0, False, 12), ("capsule", 1.0, True, 1)}
 # passed in one fresh-clone run (generic CPU build, other BLAS kernels), failed here
 FLAKY = {("capsule", 0.0, False, 13)}
 
 
 def _marks(p):
-    if p in GAINS:
-        from vrsim_cli.errors import SimulationError
-
-        return [pytest.mark.xfail(strict=True, raises=SimulationError,
-                                  reason="energy gain after the first impact")]
     if p in KNOWN:
         return [pytest.mark.xfail(strict=p not in FLAKY, reason=KNOWN[p])]
     return []

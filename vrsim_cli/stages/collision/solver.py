@@ -270,7 +270,15 @@ def _impact_round(bodies: Bodies, c: ContactSet, target) -> np.ndarray:
     """One round of an impact: normal impulses (k,) of all rows together so that each
     row's normal velocity becomes >= target (its restitution target) with complementarity,
     then friction: the tangential impulses that stop the slip of all rows together,
-    scaled into each row's cone |lam_t| <= mu lam_n. Applies them; returns lam (k, 3)."""
+    each row scaled into its cone |lam_t| <= mu lam_n, and shortened as a whole where
+    that would add energy. Applies them; returns lam (k, 3).
+
+    Neither part can add kinetic energy. An impulse lam on rows with Delassus matrix W
+    and velocity v before changes it by lam.v + lam.W lam / 2 = lam.(v + w) / 2 (w the
+    velocity after): for the normal rows lam_i > 0 only where w_i = -eps_i v_i, so the
+    change is sum lam_i (1 - eps_i) v_i / 2 <= 0 (v_i < 0: approaching; the minimum-norm
+    solve keeps this on singular W); friction is checked and, when positive, shortened
+    (above) to -(lam.v_t)^2 / (2 lam.W lam) < 0."""
     k = len(c)
     lam = np.zeros((k, 3))
     vn = velocity_along(bodies, c, 0)
@@ -287,6 +295,15 @@ def _impact_round(bodies: Bodies, c: ContactSet, target) -> np.ndarray:
             size = np.sqrt(np.einsum("kj,kj->k", lt, lt))
             cap = limit[rubbing]
             lt *= np.where(size > cap, cap / np.where(size > 0.0, size, 1.0), 1.0)[:, None]
+            # Rows clamped into their cones by different factors can add energy (the
+            # change is lt.vt + lt.W lt / 2; measured up to +320 % on random contact
+            # sets): then shorten lt along itself to the point of that line which
+            # dissipates most, alpha = -lt.vt / lt.W lt in [0, 1), where the change is
+            # -(lt.vt)^2 / (2 lt.W lt) < 0 (no friction if lt.vt >= 0).
+            flat = lt.ravel()
+            work, curv = float(flat @ vt), float(flat @ matmul(W, flat))
+            if work + 0.5 * curv > 0.0:
+                lt *= min(max(-work / curv, 0.0), 1.0) if curv > 0.0 else 0.0
             _apply_all(bodies, f, lt, [1, 2])
             lam[rubbing, 1:] = lt
     return lam
