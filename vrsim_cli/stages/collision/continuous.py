@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 
 from vrsim_cli.maths.spatial import quat_conjugate, quat_multiply
-from vrsim_cli.model.collision import BOX, PLANE, SPHERE
+from vrsim_cli.model.collision import BOX, MESH, PLANE, SPHERE
+from vrsim_cli.stages.collision import mesh_pairs
 from vrsim_cli.stages.collision.broadphase import broad_phase
 from vrsim_cli.stages.collision.contacts import Contacts, to_contacts
 from vrsim_cli.stages.collision.narrowphase import box_box_distance, narrow_phase
@@ -106,11 +107,20 @@ def max_norm(a, b) -> np.ndarray:
 
 def pair_distance(cm, world, ia, ib):
     """Distance (P,) of geom pairs (<= 0 when they touch): closed forms; for box pairs the
-    exact corner/edge distance (the separating-axis gap is only a lower bound); fcl's
-    GJK for pairs without a closed form."""
+    exact corner/edge distance (the separating-axis gap is only a lower bound); triangle
+    meshes against spheres, capsules and boxes through `mesh_pairs.gap` (the least over
+    the triangles near the body, without a contact manifold); fcl's GJK for pairs without
+    a closed form."""
     d = np.full(len(ia), np.inf)
     boxes = (cm.geom_type[ia] == BOX) & (cm.geom_type[ib] == BOX)
-    rest = np.flatnonzero(~boxes)
+    done = boxes.copy()
+    for mesh, other in ((ia, ib), (ib, ia)):
+        sel = np.flatnonzero((cm.geom_type[mesh] == MESH) &
+                             np.isin(cm.geom_type[other], mesh_pairs.KINDS))
+        if len(sel):
+            d[sel] = mesh_pairs.gap(cm, world, mesh[sel], other[sel])
+            done[sel] = True
+    rest = np.flatnonzero(~done)
     if len(rest):
         pair, _, _, depth = narrow_phase(cm, world, ia[rest], ib[rest], np.inf)
         np.minimum.at(d, rest[pair], -depth)

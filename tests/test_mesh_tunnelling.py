@@ -1,0 +1,262 @@
+"""No tunnelling through static triangle meshes, located and stepped (issue 15, item 1).
+
+A seeded property test: spheres, boxes and capsules at 1-200 m/s (log-uniform), coming in
+at 5-90 degrees to the surface, meet a flat part of a static triangle mesh at a random
+time (j + tau) dt, j in {0, 1, 2}, tau in (0.01, 0.99), dt 10 ms, eps in {0, 0.5, 1},
+frictionless, no gravity, no spin before the impact. The meshes are open surfaces (one
+triangle; a flat grid with jittered inner vertices and random diagonals; a roof of two
+slopes) and closed ones (a box; an icosphere; the convex hull of random points), written
+as OBJ files, at a random scale (0.5-5) and pose.
+
+Truth, written here and independent of the code under test. The hit triangle is drawn
+from the mesh, and the side the body comes from is one with the whole mesh on or below
+the triangle's plane (both sides of a flat surface; the outside of a closed convex mesh or
+the roof). The body's extreme point along -n (sphere: r n below the centre; box: its
+lowest corner; capsule: the lowest end cap's pole) touches the triangle at a random inner
+point at the constructed time, and nothing of the mesh can be touched before (it is all
+below the plane). Checked per case:
+1. never on the far side: at every output sample, no corner (box), end cap pole
+   (capsule) or centre (sphere) lies deeper than PENETRATION below the hit plane where it
+   is over the flat face the triangle belongs to (the coplanar triangles of the mesh),
+   and the centre is never below the plane there;
+2. spheres: the bounce follows the impact law of the plane, v' = v - (1 + eps)(v.n) n
+   (tangential velocity unchanged with mu = 0), to 1e-9 relative, in both modes (stepped
+   mode applies restitution to the approach velocity at the step's start, which without
+   gravity is v);
+3. spheres, located mode: the position at the end is the closed form c + v (t_hit - 0) +
+   v' (T - t_hit) along the plane to 1e-9 relative, and along n at most (1 + eps) times
+   the tolerance above it (another case's impact in the same scene may cut the step when
+   this sphere is within the tolerance of its face, and then it bounces there).
+
+VRSIM_SLOW_TESTS=1 runs 10 times as many cases.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+import trimesh
+
+from conftest import Steps
+from test_stepped import _rot, _unit_quat
+
+DT = 0.01
+TOLERANCE = 1e-3  # m, collision.tolerance (default)
+SPACING = 100.0  # m between cases in one scene (a case moves < 2 m per step, 6 steps)
+# Allowed depth of a body point below the face it hit: the collision tolerance (contacts
+# and impacts are found within it) plus the resting solver's slop.
+PENETRATION = 2.0 * TOLERANCE
+SLOW = os.environ.get("VRSIM_SLOW_TESTS") == "1"
+PER_SCENE = 40 if SLOW else 13
+MESHES = ("triangle", "grid", "roof", "box", "icosphere", "hull")
+
+
+def _mesh(family, rng):
+    """(vertices (V, 3), faces (F, 3)) of a mesh about 2 m across, in its own frame."""
+    if family == "triangle":
+        angles = np.array([0.0, 2.1, 4.2]) + rng.uniform(-0.3, 0.3, 3)
+        v = np.column_stack([np.cos(angles), np.zeros(3), np.sin(angles)])
+        return v, np.array([[0, 1, 2]])
+    if family == "grid":
+        k = int(rng.integers(2, 5))
+        x, z = np.meshgrid(np.linspace(-1, 1, k + 1), np.linspace(-1, 1, k + 1))
+        x, z = x.ravel(), z.ravel()
+        inner = (np.abs(x) < 1) & (np.abs(z) < 1)
+        x[inner] += rng.uniform(-0.3, 0.3, inner.sum()) / k
+        z[inner] += rng.uniform(-0.3, 0.3, inner.sum()) / k
+        v = np.column_stack([x, np.zeros_like(x), z])
+        faces = []
+        for i in range(k):
+            for j in range(k):
+                a, b, c, d = i * (k + 1) + j, i * (k + 1) + j + 1, (i + 1) * (k + 1) + j, \
+                    (i + 1) * (k + 1) + j + 1
+                faces += [[a, b, d], [a, d, c]] if rng.random() < 0.5 else \
+                    [[a, b, c], [b, d, c]]
+        return v, np.array(faces)
+    if family == "roof":
+        w, h = rng.uniform(0.5, 1.2), rng.uniform(0.1, 1.0)
+        v = np.array([[0, 0, -1], [0, 0, 1], [w, -h, -1], [w, -h, 1], [-w, -h, -1],
+                      [-w, -h, 1]], float)
+        return v, np.array([[0, 1, 3], [0, 3, 2], [0, 4, 5], [0, 5, 1]])
+    if family == "box":
+        m = trimesh.creation.box(extents=rng.uniform(0.5, 2.0, 3))
+    elif family == "icosphere":
+        m = trimesh.creation.icosphere(subdivisions=int(rng.integers(1, 3)))
+    else:
+        m = trimesh.convex.convex_hull(rng.normal(size=(int(rng.integers(8, 20)), 3)))
+    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+
+
+def _support(kind, size, R, n):
+    """Arm (3,) from the centre to the body's extreme point along -n."""
+    if kind == "sphere":
+        return -size[0] * n
+    if kind == "box":
+        corners = [R @ (0.5 * np.array(size) * s) for s in _SIGNS]
+        return min(corners, key=lambda c: float(n @ c))
+    ends = [R @ np.array([0.0, 0.5 * size[1] * s, 0.0]) for s in (-1.0, 1.0)]
+    return min(ends, key=lambda e: float(n @ e)) - size[0] * n
+
+
+_SIGNS = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3).astype(float)
+
+
+def _points(kind, size, pos, quat):
+    """World points (k, 3) whose depth below a plane bounds the body's: box corners,
+    capsule end cap poles are taken per plane in `_deepest`; here the centres."""
+    R = _rot(quat)
+    if kind == "box":
+        return pos + (R @ (0.5 * np.array(size) * _SIGNS).T).T
+    if kind == "capsule":
+        return pos + np.array([R[:, 1] * 0.5 * size[1] * s for s in (-1.0, 1.0)])
+    return pos[None]
+
+
+def _in_triangles(x, tris, n):
+    """(k,) bool: do points x (k, 3), projected along n, fall inside any triangle (T, 3, 3)
+    of the plane of normal n?"""
+    inside = np.zeros(len(x), bool)
+    for a, b, c in tris:
+        s = [np.einsum("ki,i->k", np.cross(q - p, x - p), n) for p, q in ((a, b), (b, c),
+                                                                          (c, a))]
+        inside |= ((s[0] >= 0) & (s[1] >= 0) & (s[2] >= 0)) | \
+            ((s[0] <= 0) & (s[1] <= 0) & (s[2] <= 0))
+    return inside
+
+
+def mesh_cases(kind, eps, mode, count, seed, folder):
+    """`count` cases in one scene: case c = a static mesh (body 2c) and a 1 kg body (2c +
+    1). Returns (scene text, cases)."""
+    rng = np.random.default_rng(seed)
+    lines = [f"vrsim: 1\nduration: {6 * DT}\nframe_rate: {1 / DT}\ndt: {DT}\n"
+             f"integrator: symplectic-euler\ngravity: [0, 0, 0]\n"
+             f"collision: {{impacts: {mode}}}\nbodies:"]
+    material = f"material: {{restitution: {eps}, friction: 0}}"
+    cases = []
+    side = int(np.ceil(count ** (1 / 3)))
+    for c in range(count):
+        centre = SPACING * np.array([c % side, (c // side) % side, c // side ** 2], float)
+        family = MESHES[int(rng.integers(len(MESHES)))]
+        v, faces = _mesh(family, rng)
+        name = f"m{seed}_{c}.obj"
+        (folder / name).write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in v.tolist()) +
+                                   "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in
+                                           faces))  # every digit: the truth uses them
+        scale = float(np.exp(rng.uniform(np.log(0.5), np.log(5.0))))
+        qm = _unit_quat(rng)
+        world = centre + scale * (_rot(qm) @ v.T).T
+        tris = world[faces]
+        normals = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        normals /= np.linalg.norm(normals, axis=1)[:, None]
+        while True:  # a triangle with the whole mesh on one side of its plane
+            t = int(rng.integers(len(faces)))
+            n = normals[t]
+            height = (world - tris[t, 0]) @ n
+            size_m = np.ptp(world, axis=0).max()
+            sides = [s for s in (1.0, -1.0) if (s * height <= 1e-9 * size_m).all()]
+            if sides:
+                n = n * sides[int(rng.integers(len(sides)))]
+                break
+        face = [k for k in range(len(faces)) if abs(abs(normals[k] @ n) - 1.0) < 1e-9 and
+                abs((tris[k, 0] - tris[t, 0]) @ n) < 1e-9 * size_m]
+        w = rng.dirichlet([4.0, 4.0, 4.0])  # an inner point, away from the edges
+        touch = w @ tris[t]
+        if kind == "sphere":
+            size = [float(rng.uniform(0.02, 0.3))]
+            shape = f"{{type: sphere, radius: {size[0]!r}}}"
+        elif kind == "box":
+            size = rng.uniform(0.02, 0.5, size=3).tolist()
+            shape = f"{{type: box, size: {size!r}}}"
+        else:
+            size = [float(rng.uniform(0.02, 0.2)), float(rng.uniform(0.02, 0.6))]
+            shape = f"{{type: capsule, radius: {size[0]!r}, length: {size[1]!r}}}"
+        qb = _unit_quat(rng)
+        R = _rot(qb)
+        speed = float(np.exp(rng.uniform(np.log(1.0), np.log(200.0))))
+        angle = float(np.radians(rng.uniform(5.0, 90.0)))
+        tangent = np.cross(n, rng.normal(size=3))
+        tangent /= np.linalg.norm(tangent)
+        vel = speed * (-np.sin(angle) * n + np.cos(angle) * tangent)
+        when = (int(rng.integers(0, 3)) + float(rng.uniform(0.01, 0.99))) * DT
+        pos = touch - _support(kind, size, R, n) - vel * when
+        lines.append(f"  - {{name: m{c}, type: static, position: {centre.tolist()!r}, "
+                     f"orientation: {qm.tolist()!r}, shape: {{type: mesh, file: {name}, "
+                     f"scale: {scale!r}}}, collision: {{geometry: mesh}}, {material}}}")
+        lines.append(f"  - {{name: b{c}, mass: 1, position: {pos.tolist()!r}, orientation: "
+                     f"{qb.tolist()!r}, velocity: {vel.tolist()!r}, shape: {shape}, "
+                     f"{material}}}")
+        out = vel - (1.0 + eps) * float(vel @ n) * n
+        cases.append(dict(body=2 * c + 1, kind=kind, size=size, normal=n, origin=touch,
+                          face=tris[face], when=when, vel=vel, out=out, family=family,
+                          start=pos, speed=speed))
+    return "\n".join(lines) + "\n", cases
+
+
+def far_side(case, states):
+    """The deepest (m) any point of the body went below the plane of the face it hit,
+    while over that face; and whether its centre was ever below the plane there."""
+    n, o = case["normal"], case["origin"]
+    deepest, centre_below = 0.0, False
+    kind, size = case["kind"], case["size"]
+    for s in states:
+        pos, quat = s.body_pos[case["body"]], s.body_quat[case["body"]]
+        pts = _points(kind, size, pos, quat)
+        reach = size[0] if kind in ("sphere", "capsule") else 0.0
+        low = pts - reach * n  # sphere and capsule: the pole of each end cap along -n
+        depth = -(low - o) @ n
+        over = _in_triangles(low, case["face"], n)
+        if over.any():
+            deepest = max(deepest, float(depth[over].max()))
+        if _in_triangles(pos[None], case["face"], n)[0] and (pos - o) @ n < 0.0:
+            centre_below = True
+    return deepest, centre_below
+
+
+def _run(kind, eps, mode, seed, tmp_path):
+    text, cases = mesh_cases(kind, eps, mode, PER_SCENE, seed, tmp_path)
+    scene = tmp_path / f"s{seed}.yaml"
+    scene.write_text(text)
+    from vrsim_cli.loop import run
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import load_scene
+
+    model = compile_model(load_scene(str(scene)))
+    rec = Steps()
+    result = run(model, make_state(model), rec)
+    return model, rec.states, result.state, cases
+
+
+@pytest.mark.parametrize("mode", ["located", "stepped"])
+@pytest.mark.parametrize("eps", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("kind", ["sphere", "box", "capsule"])
+def test_no_body_ends_on_the_far_side_of_a_mesh(kind, eps, mode, tmp_path):
+    seed = 1000 * ["sphere", "box", "capsule"].index(kind) + 10 * int(2 * eps) + \
+        (mode == "stepped")
+    model, states, final, cases = _run(kind, eps, mode, seed, tmp_path)
+    T = final.t
+    bad = []
+    for c in cases:
+        deepest, below = far_side(c, states + [final])
+        if deepest > PENETRATION or below:
+            bad.append((c["family"], c["speed"], "deepest", deepest, below))
+            continue
+        if kind != "sphere":
+            continue
+        v = final.body_vel[c["body"]]
+        if np.abs(v - c["out"]).max() > 1e-9 * c["speed"]:
+            bad.append((c["family"], c["speed"], "velocity", v, c["out"]))
+            continue
+        if mode == "located":
+            hit = c["origin"] + c["size"][0] * c["normal"]
+            truth = hit + c["out"] * (T - c["when"])
+            d = final.body_pos[c["body"]] - truth
+            along = float(d @ c["normal"])
+            across = d - along * c["normal"]
+            scale = 1.0 + np.abs(truth).max()
+            if np.abs(across).max() > 1e-9 * scale or \
+                    not -1e-9 * scale <= along <= (1.0 + eps) * TOLERANCE + 1e-9 * scale:
+                bad.append((c["family"], c["speed"], "position", along, across))
+    assert not bad, bad

@@ -1,0 +1,417 @@
+"""Spheres, capsules and boxes against triangle meshes: contacts and gaps, closed form.
+
+The pair functions have the narrow phase's signature (`narrowphase.DISPATCH`, mesh first:
+normals point from the mesh to the other body). They replace python-fcl for these pairs:
+fcl 0.7's triangle-sphere test reports penetration depths with the wrong sign (a sphere
+0.01 m into a face came back 0.01 m *apart*, and was dropped), normals that flip when the
+centre crosses a face, and the nearest points of `distance` in the sphere's frame, so a
+sphere fell through a static mesh in every impact mode.
+
+Each body is taken into the mesh's frame, tested against the triangles whose boxes are
+within the margin, and its contacts are the *features* that meet (Ericson, Real-Time
+Collision Detection, ch. 5):
+- sphere, capsule (a segment of radius r): the part of the segment over a triangle (its
+  ends, along the face normal); the segment's closest points to each edge; each corner's
+  closest point on the segment;
+- box: its corners against each triangle (face, edge or corner of the triangle), the
+  triangle's corners against the box, and the box's edges crossing the triangle's edges.
+A face contact's normal is the face's, turned to the side of the body's centre (a mesh is
+a surface: both sides collide). Edge and corner contacts are kept only where their normal
+is one the mesh can have there (`maths.triangles.admissible`): between two coplanar
+triangles that is the face normal alone, so no ghost edge trips a body sliding over a
+flat mesh. Contacts of one pair at the same point with the same normal (the shared edge of
+two triangles) are reported once.
+
+`gap(cm, world, ia, ib)`: the signed gap of each pair (> 0 the exact distance when apart,
+<= 0 touching or overlapping), for continuous detection and the impact search.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vrsim_cli.maths.triangles import (EDGE, FACE, VERTEX, admissible, box_sdf,
+                                       closest_on_triangle, closest_segment_points,
+                                       point_triangle_distance, segment_triangle_distance,
+                                       topology)
+from vrsim_cli.model.collision import BOX, CAPSULE, SPHERE
+from vrsim_cli.stages.collision.contacts import no_pair_contacts
+
+EDGE_SLACK = 0.1  # a box edge's normal may lean this far (cosine) out of its own cone
+_INTERIOR = 1e-9  # segment parameters this close to an end are that end (a corner)
+_ROUND = 1e9  # contacts equal to 1e-9 m and 1e-9 in their normal are one contact
+
+
+def _dot(u, v):
+    return np.einsum("...i,...i->...", u, v)
+
+
+def _unit(v, fallback):
+    length = np.linalg.norm(v, axis=-1, keepdims=True)
+    ok = length > 1e-300
+    return np.where(ok, v / np.where(ok, length, 1.0), fallback), length[..., 0]
+
+
+def _topology(cm, g):
+    key = ("topology", id(cm.geom_vertices[g]))
+    if key not in cm.cache:
+        cm.cache[key] = topology(cm.geom_vertices[g], cm.geom_faces[g])
+    return cm.cache[key]
+
+
+class _Local:
+    """The bodies of pairs (mesh ia, body ib) in their mesh's frame: centre (P, 3), axes
+    (P, 3, 3) (columns), half extents (P, 3), radius (P,), segment ends (P, 3) each."""
+
+    def __init__(self, cm, world, ia, ib):
+        R = world.rot[ia]
+        self.R, self.origin = R, world.pos[ia]
+        self.centre = np.einsum("pji,pj->pi", R, world.pos[ib] - world.pos[ia])
+        self.axes = np.einsum("pji,pjk->pik", R, world.rot[ib])
+        self.half = world.half[ib]
+        self.radius = cm.geom_radius[ib]
+        kind = cm.geom_type[ib]
+        along = np.where((kind == CAPSULE)[:, None], self.axes[:, :, 1] *
+                         self.half[:, 1:2], 0.0)
+        self.p0, self.p1 = self.centre - along, self.centre + along
+        extent = np.where((kind == BOX)[:, None],
+                          np.einsum("pij,pj->pi", np.abs(self.axes), self.half),
+                          np.abs(along) + self.radius[:, None])
+        self.lo, self.hi = self.centre - extent, self.centre + extent
+        self.bound = np.where(kind == BOX, np.linalg.norm(self.half, axis=1),
+                              np.linalg.norm(along, axis=1) + self.radius)
+
+    def to_world(self, pair, point, normal):
+        R = self.R[pair]
+        return (self.origin[pair] + np.einsum("pij,pj->pi", R, point),
+                np.einsum("pij,pj->pi", R, normal))
+
+
+def _near(cm, ia, local, margin):
+    """Rows (pair (R,), triangle (R,)) of the triangles whose boxes come within `margin`
+    of each pair's body box; with an infinite margin, the triangles that can hold the
+    least distance (their box is no farther from the body's centre than the nearest
+    corner is, plus the body's reach)."""
+    pairs, tris = [], []
+    for p, g in enumerate(ia.tolist()):
+        topo = _topology(cm, g)
+        if np.isfinite(margin):
+            lo, hi = local.lo[p] - margin, local.hi[p] + margin
+            keep = np.flatnonzero(np.all((topo.lo <= hi) & (topo.hi >= lo), axis=1))
+        else:
+            c = local.centre[p]
+            upper = np.sqrt(((topo.corners[:, 0] - c) ** 2).sum(1)).min()
+            box = np.sqrt((np.maximum(np.maximum(topo.lo - c, c - topo.hi), 0.0) ** 2).sum(1))
+            keep = np.flatnonzero(box - local.bound[p] <= upper)
+        pairs.append(np.full(len(keep), p))
+        tris.append(keep)
+    return np.concatenate(pairs).astype(np.int64), np.concatenate(tris).astype(np.int64)
+
+
+def _finish(cm, ia, local, rows, margin):
+    """Contacts (pair, point, normal, depth) in the world from candidate rows (pair,
+    triangle, feature, mesh witness, body witness, normal, depth), all in the mesh frame:
+    within the margin, admissible, once per point and normal, sorted by pair."""
+    pair, tri, feature, on_mesh, on_body, normal, depth = (np.concatenate(x) for x in
+                                                            zip(*rows))
+    keep = depth >= -margin
+    ok = np.zeros(len(pair), bool)
+    for g in np.unique(ia[pair[keep]]).tolist():
+        sel = np.flatnonzero(keep & (ia[pair] == g))
+        ok[sel] = admissible(_topology(cm, g), tri[sel], feature[sel], normal[sel])
+    sel = np.flatnonzero(ok)
+    if not len(sel):
+        return no_pair_contacts()
+    point = 0.5 * (on_mesh[sel] + on_body[sel])
+    key = np.column_stack([pair[sel], np.round(point * _ROUND), np.round(normal[sel] *
+                                                                         _ROUND)])
+    _, first = np.unique(key, axis=0, return_index=True)
+    sel = sel[np.sort(first)]
+    order = sel[np.argsort(pair[sel], kind="stable")]
+    p, n = local.to_world(pair[order], 0.5 * (on_mesh[order] + on_body[order]), normal[order])
+    return pair[order], p, n, depth[order]
+
+
+def _side(topo, tri, centre):
+    """+1 or -1 (R,): the side of each triangle's plane the body's centre is on."""
+    h = _dot(centre - topo.corners[tri, 0], topo.normal[tri])
+    return np.where(h < 0.0, -1.0, 1.0)
+
+
+def _rows(cm, ia, local, margin):
+    pair, tri = _near(cm, ia, local, margin)
+    corners = np.zeros((len(tri), 3, 3))
+    normal = np.zeros((len(tri), 3))
+    for g in np.unique(ia[pair]).tolist():
+        sel = np.flatnonzero(ia[pair] == g)
+        topo = _topology(cm, g)
+        corners[sel], normal[sel] = topo.corners[tri[sel]], topo.normal[tri[sel]]
+    return pair, tri, corners, normal
+
+
+def _segments(cm, ia, local, margin, pair, tri, corners, tnormal):
+    """Candidate rows of segments of radius r (spheres: of length 0) against triangles."""
+    p0, p1, r, centre = local.p0[pair], local.p1[pair], local.radius[pair], \
+        local.centre[pair]
+    d = p1 - p0
+    a = corners[:, 0]
+    side = np.where(_dot(centre - a, tnormal) < 0.0, -1.0, 1.0)
+    out = []
+    live = np.linalg.norm(tnormal, axis=1) > 0.0  # degenerate triangles have no face
+    # 1. The part of the segment over the triangle (its prism): its two ends, face normal.
+    s0, s1 = np.zeros(len(pair)), np.ones(len(pair))
+    for j in range(3):
+        e0, e1 = corners[:, j], corners[:, (j + 1) % 3]
+        u = np.cross(tnormal, e1 - e0)  # into the triangle (counter-clockwise about n)
+        f0, df = _dot(p0 - e0, u), _dot(d, u)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cut = -f0 / df
+        s0 = np.where(df > 0.0, np.maximum(s0, cut), s0)
+        s1 = np.where(df < 0.0, np.minimum(s1, cut), s1)
+        live &= (df != 0.0) | (f0 >= 0.0)
+    live &= s0 <= s1
+    n = side[:, None] * tnormal
+    for s in (s0, s1):
+        rows = np.flatnonzero(live)
+        x = p0[rows] + s[rows, None] * d[rows]
+        h = _dot(x - a[rows], n[rows])
+        out.append((pair[rows], tri[rows], np.full(len(rows), FACE),
+                    x - h[:, None] * n[rows], x - r[rows, None] * n[rows], n[rows],
+                    r[rows] - h))
+    # 2. The segment (and each of its ends) against the inside of each edge.
+    for j in range(3):
+        e0, e1 = corners[:, j], corners[:, (j + 1) % 3]
+        s, t = closest_segment_points(p0, p1, e0, e1)
+        ends = [(s, t)]
+        for s_end in (0.0, 1.0):
+            x = p0 + s_end * d
+            e = e1 - e0
+            t_end = np.clip(_dot(x - e0, e) / np.maximum(_dot(e, e), 1e-300), 0.0, 1.0)
+            ends.append((np.full(len(pair), s_end), t_end))
+        for s, t in ends:
+            rows = np.flatnonzero((t > _INTERIOR) & (t < 1.0 - _INTERIOR))
+            xs = p0[rows] + s[rows, None] * d[rows]
+            xe = e0[rows] + t[rows, None] * (e1 - e0)[rows]
+            e = _unit(e1[rows] - e0[rows], 0.0)[0]
+            away = centre[rows] - xe
+            fallback = _unit(away - _dot(away, e)[:, None] * e, tnormal[rows])[0]
+            m, dist = _unit(xs - xe, fallback)
+            out.append((pair[rows], tri[rows], np.full(len(rows), EDGE + j), xe,
+                        xs - r[rows, None] * m, m, r[rows] - dist))
+    # 3. Each corner against the segment.
+    for j in range(3):
+        v = corners[:, j]
+        t = np.clip(_dot(v - p0, d) / np.maximum(_dot(d, d), 1e-300), 0.0, 1.0)
+        xs = p0 + t[:, None] * d
+        m, dist = _unit(xs - v, _unit(centre - v, tnormal)[0])
+        out.append((pair, tri, np.full(len(pair), VERTEX + j), v, xs - r[:, None] * m, m,
+                    r - dist))
+    return out
+
+
+_SIGNS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+                  dtype=float)
+
+
+def _box_corners(local, pair):
+    """The 8 corners (R, 8, 3) of the boxes of pairs `pair`."""
+    return local.centre[pair][:, None] + np.einsum(
+        "pij,pkj->pki", local.axes[pair], _SIGNS[None] * local.half[pair][:, None])
+
+
+def _box_edges(local, pair):
+    """The 12 edges of each box (R, 12, 3) start, end, and the outward normals (R, 12, 2,
+    3) of the two faces that meet there."""
+    A, h, c = local.axes[pair], local.half[pair], local.centre[pair]
+    starts, ends, faces = [], [], []
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        for sj in (-1.0, 1.0):
+            for sk in (-1.0, 1.0):
+                mid = c + A[:, :, j] * (sj * h[:, j:j + 1]) + A[:, :, k] * (sk * h[:, k:k + 1])
+                along = A[:, :, i] * h[:, i:i + 1]
+                starts.append(mid - along)
+                ends.append(mid + along)
+                faces.append(np.stack([sj * A[:, :, j], sk * A[:, :, k]], axis=1))
+    return np.stack(starts, 1), np.stack(ends, 1), np.stack(faces, 1)
+
+
+def _boxes(cm, ia, local, margin, pair, tri, corners, tnormal):
+    """Candidate rows of boxes against triangles."""
+    centre = local.centre[pair]
+    A, half = local.axes[pair], local.half[pair]
+    a = corners[:, 0]
+    side = np.where(_dot(centre - a, tnormal) < 0.0, -1.0, 1.0)
+    out = []
+    # 1. The box's corners against the triangle.
+    box_corners = _box_corners(local, pair)
+    for k in range(8):
+        x = box_corners[:, k]
+        q, feature = closest_on_triangle(x, a, corners[:, 1], corners[:, 2])
+        face = (feature == FACE) & (np.linalg.norm(tnormal, axis=1) > 0.0)
+        m, dist = _unit(x - q, _unit(centre - q, tnormal)[0])
+        n_face = side[:, None] * tnormal
+        h = _dot(x - a, n_face)
+        m = np.where(face[:, None], n_face, m)
+        gap = np.where(face, h, dist)
+        q = np.where(face[:, None], x - h[:, None] * n_face, q)
+        feature = np.where(face | (feature != FACE), feature, VERTEX)  # degenerate: a corner
+        out.append((pair, tri, feature, q, x, m, -gap))
+    # 2. The triangle's corners against the box.
+    for j in range(3):
+        v = corners[:, j]
+        lv = np.einsum("pji,pj->pi", A, v - centre)
+        clamped = np.clip(lv, -half, half)
+        outside = np.any(np.abs(lv) > half, axis=1)
+        gap_axis = half - np.abs(lv)
+        k = np.argmin(gap_axis, axis=1)
+        rows = np.arange(len(pair))
+        sign = np.where(lv[rows, k] >= 0.0, 1.0, -1.0)
+        surface = lv.copy()
+        surface[rows, k] = sign * half[rows, k]
+        surface = np.where(outside[:, None], clamped, surface)
+        inward = np.zeros_like(lv)
+        inward[rows, k] = -sign  # into the box, out of its nearest face
+        m_local, dist = _unit(surface - lv, inward)
+        m_local = np.where(outside[:, None], m_local, inward)
+        depth = np.where(outside, -dist, gap_axis[rows, k])
+        on_box = centre + np.einsum("pij,pj->pi", A, surface)
+        m = np.einsum("pij,pj->pi", A, m_local)
+        out.append((pair, tri, np.full(len(pair), VERTEX + j), v, on_box, m, depth))
+    # 3. The box's edges across the triangle's edges.
+    b0, b1, bfaces = _box_edges(local, pair)
+    for j in range(3):
+        e0, e1 = corners[:, j], corners[:, (j + 1) % 3]
+        for k in range(12):
+            s, t = closest_segment_points(b0[:, k], b1[:, k], e0, e1)
+            inside = (s > _INTERIOR) & (s < 1.0 - _INTERIOR) & (t > _INTERIOR) & \
+                (t < 1.0 - _INTERIOR)
+            cross = np.cross(b1[:, k] - b0[:, k], e1 - e0)
+            size = np.linalg.norm(b1[:, k] - b0[:, k], axis=1) * np.linalg.norm(e1 - e0, axis=1)
+            inside &= np.linalg.norm(cross, axis=1) > 1e-9 * size
+            rows = np.flatnonzero(inside)
+            xb = b0[rows, k] + s[rows, None] * (b1[rows, k] - b0[rows, k])
+            xe = e0[rows] + t[rows, None] * (e1 - e0)[rows]
+            m = _unit(cross[rows], 0.0)[0]
+            w = xb - xe
+            towards = np.where(np.linalg.norm(w, axis=1) > 1e-12 * (1.0 + np.sqrt(size[rows])),
+                               _dot(m, w), _dot(m, centre[rows] - xe))
+            m = m * np.where(towards < 0.0, -1.0, 1.0)[:, None]
+            own = (_dot(bfaces[rows, k, 0], m) <= EDGE_SLACK) & \
+                (_dot(bfaces[rows, k, 1], m) <= EDGE_SLACK)
+            rows, xb, xe, m = rows[own], xb[own], xe[own], m[own]
+            out.append((pair[rows], tri[rows], np.full(len(rows), EDGE + j), xe, xb, m,
+                        -_dot(m, xb - xe)))
+    return out
+
+
+def _pair_contacts(cm, world, ia, ib, margin, make):
+    local = _Local(cm, world, ia, ib)
+    pair, tri, corners, tnormal = _rows(cm, ia, local, margin)
+    if not len(pair):
+        return no_pair_contacts()
+    return _finish(cm, ia, local, make(cm, ia, local, margin, pair, tri, corners, tnormal),
+                   margin)
+
+
+def mesh_sphere(cm, world, ia, ib, margin):
+    """Triangle mesh (A) and sphere (B)."""
+    return _pair_contacts(cm, world, ia, ib, margin, _segments)
+
+
+def mesh_capsule(cm, world, ia, ib, margin):
+    """Triangle mesh (A) and capsule (B)."""
+    return _pair_contacts(cm, world, ia, ib, margin, _segments)
+
+
+def mesh_box(cm, world, ia, ib, margin):
+    """Triangle mesh (A) and box (B)."""
+    return _pair_contacts(cm, world, ia, ib, margin, _boxes)
+
+
+# ------------------------------------------------------------------------ gaps
+
+
+def _box_triangle_separation(centre, A, half, corners, tnormal):
+    """(R,) m: the largest separation of boxes and triangles along the 13 axes (the face
+    normal, the box's 3 axes, the 9 crosses of box axes and triangle edges); <= 0 exactly
+    when they touch or overlap."""
+    axes = [tnormal] + [A[:, :, i] for i in range(3)]
+    for i in range(3):
+        for j in range(3):
+            axes.append(np.cross(A[:, :, i], corners[:, (j + 1) % 3] - corners[:, j]))
+    best = np.full(len(centre), -np.inf)
+    for L in axes:
+        L, length = _unit(L, 0.0)
+        c = _dot(centre, L)
+        r = np.einsum("pk,pk->p", half, np.abs(np.einsum("pik,pi->pk", A, L)))
+        proj = np.einsum("pji,pi->pj", corners, L)
+        sep = np.maximum(proj.min(axis=1) - (c + r), (c - r) - proj.max(axis=1))
+        best = np.maximum(best, np.where(length > 1e-9, sep, -np.inf))
+    return best
+
+
+def _box_triangle_distance(local, pair, corners):
+    """(R,) m: the distance of boxes and triangles that are apart: the least over the
+    box's corners to the triangle, the triangle's corners to the box and the box's edges
+    to the triangle's edges (the closest points of two convex polyhedra lie on such a
+    pair of features)."""
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    box_corners = _box_corners(local, pair)
+    d = np.full(len(pair), np.inf)
+    for k in range(8):
+        d = np.minimum(d, point_triangle_distance(box_corners[:, k], a, b, c))
+    A, half, centre = local.axes[pair], local.half[pair], local.centre[pair]
+    for j in range(3):
+        lv = np.einsum("pji,pj->pi", A, corners[:, j] - centre)
+        d = np.minimum(d, box_sdf(lv, half))
+    b0, b1, _ = _box_edges(local, pair)
+    for j in range(3):
+        e0, e1 = corners[:, j], corners[:, (j + 1) % 3]
+        for k in range(12):
+            s, t = closest_segment_points(b0[:, k], b1[:, k], e0, e1)
+            w = b0[:, k] + s[:, None] * (b1[:, k] - b0[:, k]) - (e0 + t[:, None] * (e1 - e0))
+            d = np.minimum(d, np.linalg.norm(w, axis=1))
+    return d
+
+
+def gap(cm, world, ia, ib) -> np.ndarray:
+    """(P,) m: the signed gap of pairs (mesh ia, sphere, capsule or box ib): the exact
+    distance when apart, <= 0 when they touch or overlap (spheres and capsules: the
+    distance of the centre or axis minus the radius; boxes: the separating-axis overlap),
+    continuous in the poses. A lower bound of the distance, as conservative advancement
+    needs."""
+    ia, ib = np.asarray(ia, np.int64), np.asarray(ib, np.int64)
+    out = np.full(len(ia), np.inf)
+    if not len(ia):
+        return out
+    local = _Local(cm, world, ia, ib)
+    pair, tri, corners, tnormal = _rows(cm, ia, local, np.inf)
+    if not len(pair):
+        return out
+    kind = cm.geom_type[ib[pair]]
+    g = np.full(len(pair), np.inf)
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    sph = np.flatnonzero(kind == SPHERE)
+    if len(sph):
+        g[sph] = point_triangle_distance(local.centre[pair[sph]], a[sph], b[sph], c[sph]) - \
+            local.radius[pair[sph]]
+    cap = np.flatnonzero(kind == CAPSULE)
+    if len(cap):
+        g[cap] = segment_triangle_distance(local.p0[pair[cap]], local.p1[pair[cap]], a[cap],
+                                           b[cap], c[cap], tnormal[cap]) - \
+            local.radius[pair[cap]]
+    box = np.flatnonzero(kind == BOX)
+    if len(box):
+        p = pair[box]
+        sep = _box_triangle_separation(local.centre[p], local.axes[p], local.half[p],
+                                       corners[box], tnormal[box])
+        apart = np.flatnonzero(sep > 0.0)
+        g[box] = sep
+        if len(apart):
+            g[box[apart]] = _box_triangle_distance(local, p[apart], corners[box[apart]])
+    np.minimum.at(out, pair, g)
+    return out
+
+
+KINDS = (SPHERE, CAPSULE, BOX)  # the body types `gap` and the pair functions take
