@@ -122,31 +122,24 @@ def _finish(cm, ia, local, rows, margin):
     sel = np.flatnonzero(ok)
     if not len(sel):
         return no_pair_contacts()
-    point = 0.5 * (on_mesh[sel] + on_body[sel])
-    key = np.column_stack([pair[sel], np.round(point * _ROUND), np.round(normal[sel] *
-                                                                         _ROUND)])
-    _, first = np.unique(key, axis=0, return_index=True)
-    sel = sel[np.sort(first)]
+    sel = sel[once(pair[sel], 0.5 * (on_mesh[sel] + on_body[sel]), normal[sel])]
     order = sel[np.argsort(pair[sel], kind="stable")]
     p, n = local.to_world(pair[order], 0.5 * (on_mesh[order] + on_body[order]), normal[order])
     return pair[order], p, n, depth[order]
 
 
-def _side(topo, tri, centre):
-    """+1 or -1 (R,): the side of each triangle's plane the body's centre is on."""
-    h = _dot(centre - topo.corners[tri, 0], topo.normal[tri])
-    return np.where(h < 0.0, -1.0, 1.0)
+def once(pair, point, normal) -> np.ndarray:
+    """Indices (sorted) of the contacts to keep: one of each pair's contacts at the same
+    point (to 1e-9 m) with the same normal (to 1e-9), as two triangles sharing the edge
+    a body touches both report it."""
+    key = np.column_stack([pair, np.round(point * _ROUND), np.round(normal * _ROUND)])
+    _, first = np.unique(key, axis=0, return_index=True)
+    return np.sort(first)
 
 
 def _rows(cm, ia, local, margin):
     pair, tri = _near(cm, ia, local, margin)
-    corners = np.zeros((len(tri), 3, 3))
-    normal = np.zeros((len(tri), 3))
-    for g in np.unique(ia[pair]).tolist():
-        sel = np.flatnonzero(ia[pair] == g)
-        topo = _topology(cm, g)
-        corners[sel], normal[sel] = topo.corners[tri[sel]], topo.normal[tri[sel]]
-    return pair, tri, corners, normal
+    return (pair, tri) + triangles_of(cm, ia, pair, tri)
 
 
 def _segments(cm, ia, local, margin, pair, tri, corners, tnormal):
@@ -375,20 +368,11 @@ def _box_triangle_distance(local, pair, corners):
     return d
 
 
-def gap(cm, world, ia, ib) -> np.ndarray:
-    """(P,) m: the signed gap of pairs (mesh ia, sphere, capsule or box ib): the exact
-    distance when apart, <= 0 when they touch or overlap (spheres and capsules: the
-    distance of the centre or axis minus the radius; boxes: the separating-axis overlap),
-    continuous in the poses. A lower bound of the distance, as conservative advancement
-    needs."""
-    ia, ib = np.asarray(ia, np.int64), np.asarray(ib, np.int64)
-    out = np.full(len(ia), np.inf)
-    if not len(ia):
-        return out
-    local = _Local(cm, world, ia, ib)
-    pair, tri, corners, tnormal = _rows(cm, ia, local, np.inf)
-    if not len(pair):
-        return out
+def row_gaps(cm, local, ib, pair, tri, corners, tnormal) -> np.ndarray:
+    """(R,) m: the signed gap of each row (pair, triangle): the exact distance when apart,
+    <= 0 when they touch or overlap (spheres and capsules: the distance of the centre or
+    axis minus the radius; boxes: the separating-axis overlap), continuous in the poses,
+    and a lower bound of the distance, as conservative advancement needs."""
     kind = cm.geom_type[ib[pair]]
     g = np.full(len(pair), np.inf)
     a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
@@ -410,8 +394,56 @@ def gap(cm, world, ia, ib) -> np.ndarray:
         g[box] = sep
         if len(apart):
             g[box[apart]] = _box_triangle_distance(local, p[apart], corners[box[apart]])
-    np.minimum.at(out, pair, g)
+    return g
+
+
+def gap(cm, world, ia, ib) -> np.ndarray:
+    """(P,) m: the signed gap of pairs (mesh ia, sphere, capsule or box ib), the least of
+    `row_gaps` over the triangles that can hold it."""
+    ia, ib = np.asarray(ia, np.int64), np.asarray(ib, np.int64)
+    out = np.full(len(ia), np.inf)
+    if not len(ia):
+        return out
+    local = _Local(cm, world, ia, ib)
+    pair, tri, corners, tnormal = _rows(cm, ia, local, np.inf)
+    if len(pair):
+        np.minimum.at(out, pair, row_gaps(cm, local, ib, pair, tri, corners, tnormal))
     return out
+
+
+def rows_near(cm, world, ia, ib, margin):
+    """The bodies of pairs (mesh ia, body ib) in their meshes' frames (`_Local`) and the
+    rows (pair, triangle, corners, normal) of the triangles within `margin` of them."""
+    local = _Local(cm, world, ia, ib)
+    return local, _rows(cm, ia, local, margin)
+
+
+def triangles_of(cm, ia, pair, tri):
+    """corners (R, 3, 3) and normals (R, 3) of triangles `tri` of meshes ia[pair]."""
+    corners = np.zeros((len(tri), 3, 3))
+    normal = np.zeros((len(tri), 3))
+    for g in np.unique(ia[pair]).tolist():
+        sel = np.flatnonzero(ia[pair] == g)
+        topo = _topology(cm, g)
+        corners[sel], normal[sel] = topo.corners[tri[sel]], topo.normal[tri[sel]]
+    return corners, normal
+
+
+def row_contacts(cm, world, ia, ib, tri, margin):
+    """Contacts (pair, point, normal, depth) of pairs (mesh ia, body ib) (P,) with one
+    triangle each, `tri` (P,), within `margin`."""
+    local = _Local(cm, world, ia, ib)
+    pair = np.arange(len(ia))
+    corners, tnormal = triangles_of(cm, ia, pair, tri)
+    rows = []
+    for kind, make in ((BOX, _boxes), (None, _segments)):
+        sel = np.flatnonzero((cm.geom_type[ib] == BOX) == (kind == BOX))
+        if len(sel):
+            rows += make(cm, ia, local, margin, pair[sel], tri[sel], corners[sel],
+                         tnormal[sel])
+    if not rows:
+        return no_pair_contacts()
+    return _finish(cm, ia, local, rows, margin)
 
 
 KINDS = (SPHERE, CAPSULE, BOX)  # the body types `gap` and the pair functions take
