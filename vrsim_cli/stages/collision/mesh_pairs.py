@@ -39,6 +39,7 @@ from vrsim_cli.stages.collision.contacts import no_pair_contacts
 
 EDGE_SLACK = 0.1  # a box edge's normal may lean this far (cosine) out of its own cone
 _INTERIOR = 1e-9  # segment parameters this close to an end are that end (a corner)
+_TRI_KEY = 1 << 32  # pair * _TRI_KEY + triangle: one key per candidate row
 _ROUND = 1e9  # contacts equal to 1e-9 m and 1e-9 in their normal are one contact
 
 
@@ -108,13 +109,22 @@ def _near(cm, ia, local, margin):
     return np.concatenate(pairs).astype(np.int64), np.concatenate(tris).astype(np.int64)
 
 
-def _finish(cm, ia, local, rows, margin):
+def _finish(cm, ia, local, rows, margin, deepest):
     """Contacts (pair, point, normal, depth) in the world from candidate rows (pair,
     triangle, feature, mesh witness, body witness, normal, depth), all in the mesh frame:
-    within the margin, admissible, once per point and normal, sorted by pair."""
+    within the margin, no deeper than the body overlaps that triangle, admissible, once
+    per point and normal, sorted by pair. deepest: (keys pair * n_tri + tri sorted,
+    their overlap + tolerance) of the candidate triangles.
+
+    The overlap bound catches a wrong side: a face contact is turned to the side of the
+    body's centre, and a box beside a closed mesh (over one face, its centre inside the
+    plane of the next face) had a corner past that next face's plane, outside the mesh,
+    reported 4.4 cm deep towards the inside while it overlapped the mesh by 0.3 mm."""
     pair, tri, feature, on_mesh, on_body, normal, depth = (np.concatenate(x) for x in
                                                             zip(*rows))
-    keep = depth >= -margin
+    keys, bound = deepest
+    at = np.searchsorted(keys, pair * _TRI_KEY + tri)
+    keep = (depth >= -margin) & (depth <= bound[np.minimum(at, len(bound) - 1)])
     ok = np.zeros(len(pair), bool)
     for g in np.unique(ia[pair[keep]]).tolist():
         sel = np.flatnonzero(keep & (ia[pair] == g))
@@ -304,7 +314,16 @@ def _pair_contacts(cm, world, ia, ib, margin, make):
     if not len(pair):
         return no_pair_contacts()
     return _finish(cm, ia, local, make(cm, ia, local, margin, pair, tri, corners, tnormal),
-                   margin)
+                   margin, _deepest(cm, local, ib, pair, tri, corners, tnormal))
+
+
+def _deepest(cm, local, ib, pair, tri, corners, tnormal):
+    """(keys sorted, bound): the deepest a contact of each candidate row may be, its
+    overlap (-row_gaps) plus the tolerance."""
+    keys = pair * _TRI_KEY + tri
+    order = np.argsort(keys, kind="stable")
+    g = row_gaps(cm, local, ib, pair[order], tri[order], corners[order], tnormal[order])
+    return keys[order], np.maximum(-g, 0.0) + cm.tolerance
 
 
 def mesh_sphere(cm, world, ia, ib, margin):
@@ -443,7 +462,8 @@ def row_contacts(cm, world, ia, ib, tri, margin):
                          tnormal[sel])
     if not rows:
         return no_pair_contacts()
-    return _finish(cm, ia, local, rows, margin)
+    return _finish(cm, ia, local, rows, margin,
+                   _deepest(cm, local, ib, pair, tri, corners, tnormal))
 
 
 KINDS = (SPHERE, CAPSULE, BOX)  # the body types `gap` and the pair functions take
