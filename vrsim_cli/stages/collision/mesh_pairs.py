@@ -226,17 +226,17 @@ def _box_edges(local, pair):
     """The 12 edges of each box (R, 12, 3) start, end, and the outward normals (R, 12, 2,
     3) of the two faces that meet there."""
     A, h, c = local.axes[pair], local.half[pair], local.centre[pair]
-    starts, ends, faces = [], [], []
-    for i in range(3):
-        j, k = (i + 1) % 3, (i + 2) % 3
-        for sj in (-1.0, 1.0):
-            for sk in (-1.0, 1.0):
-                mid = c + A[:, :, j] * (sj * h[:, j:j + 1]) + A[:, :, k] * (sk * h[:, k:k + 1])
-                along = A[:, :, i] * h[:, i:i + 1]
-                starts.append(mid - along)
-                ends.append(mid + along)
-                faces.append(np.stack([sj * A[:, :, j], sk * A[:, :, k]], axis=1))
-    return np.stack(starts, 1), np.stack(ends, 1), np.stack(faces, 1)
+    mid = c[:, None] + np.einsum("pij,pej->pei", A, _EDGE_MID[None] * h[:, None])
+    along = np.einsum("pij,pej->pei", A, _EDGE_DIR[None] * h[:, None])
+    faces = np.einsum("pij,efj->pefi", A, _EDGE_FACES)
+    return mid - along, mid + along, faces
+
+
+# the 12 box edges: along axis i, at signs sj, sk of the other two (half extents 1)
+_EDGE_MID, _EDGE_DIR, _EDGE_FACES = (np.array(x, float) for x in zip(*[
+    (np.eye(3)[(i + 1) % 3] * sj + np.eye(3)[(i + 2) % 3] * sk, np.eye(3)[i],
+     [np.eye(3)[(i + 1) % 3] * sj, np.eye(3)[(i + 2) % 3] * sk])
+    for i in range(3) for sj in (-1.0, 1.0) for sk in (-1.0, 1.0)]))
 
 
 def _boxes(cm, ia, local, margin, pair, tri, corners, tnormal):
@@ -348,19 +348,16 @@ def _box_triangle_separation(centre, A, half, corners, tnormal):
     """(R,) m: the largest separation of boxes and triangles along the 13 axes (the face
     normal, the box's 3 axes, the 9 crosses of box axes and triangle edges); <= 0 exactly
     when they touch or overlap."""
-    axes = [tnormal] + [A[:, :, i] for i in range(3)]
-    for i in range(3):
-        for j in range(3):
-            axes.append(np.cross(A[:, :, i], corners[:, (j + 1) % 3] - corners[:, j]))
-    best = np.full(len(centre), -np.inf)
-    for L in axes:
-        L, length = _unit(L, 0.0)
-        c = _dot(centre, L)
-        r = np.einsum("pk,pk->p", half, np.abs(np.einsum("pik,pi->pk", A, L)))
-        proj = np.einsum("pji,pi->pj", corners, L)
-        sep = np.maximum(proj.min(axis=1) - (c + r), (c - r) - proj.max(axis=1))
-        best = np.maximum(best, np.where(length > 1e-9, sep, -np.inf))
-    return best
+    edges = np.roll(corners, -1, axis=1) - corners  # (R, 3, 3): edge j
+    crosses = np.cross(np.swapaxes(A, 1, 2)[:, :, None, :], edges[:, None, :, :])
+    L = np.concatenate([tnormal[:, None], np.swapaxes(A, 1, 2), crosses.reshape(-1, 9, 3)],
+                       axis=1)  # (R, 13, 3)
+    L, length = _unit(L, 0.0)
+    c = np.einsum("pi,pai->pa", centre, L)
+    r = np.einsum("pk,pak->pa", half, np.abs(np.einsum("pik,pai->pak", A, L)))
+    proj = np.einsum("pji,pai->paj", corners, L)  # (R, 13, 3)
+    sep = np.maximum(proj.min(axis=2) - (c + r), (c - r) - proj.max(axis=2))
+    return np.where(length > 1e-9, sep, -np.inf).max(axis=1)
 
 
 def _box_triangle_distance(local, pair, corners):
@@ -368,23 +365,23 @@ def _box_triangle_distance(local, pair, corners):
     box's corners to the triangle, the triangle's corners to the box and the box's edges
     to the triangle's edges (the closest points of two convex polyhedra lie on such a
     pair of features)."""
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    box_corners = _box_corners(local, pair)
-    d = np.full(len(pair), np.inf)
-    for k in range(8):
-        d = np.minimum(d, point_triangle_distance(box_corners[:, k], a, b, c))
+    R = len(pair)
+    box_corners = _box_corners(local, pair)  # (R, 8, 3); all features at once
+    tri8 = np.repeat(corners, 8, axis=0)
+    d = point_triangle_distance(box_corners.reshape(-1, 3), tri8[:, 0], tri8[:, 1],
+                                tri8[:, 2]).reshape(R, 8).min(axis=1)
     A, half, centre = local.axes[pair], local.half[pair], local.centre[pair]
-    for j in range(3):
-        lv = np.einsum("pji,pj->pi", A, corners[:, j] - centre)
-        d = np.minimum(d, box_sdf(lv, half))
-    b0, b1, _ = _box_edges(local, pair)
-    for j in range(3):
-        e0, e1 = corners[:, j], corners[:, (j + 1) % 3]
-        for k in range(12):
-            s, t = closest_segment_points(b0[:, k], b1[:, k], e0, e1)
-            w = b0[:, k] + s[:, None] * (b1[:, k] - b0[:, k]) - (e0 + t[:, None] * (e1 - e0))
-            d = np.minimum(d, np.linalg.norm(w, axis=1))
-    return d
+    lv = np.einsum("pji,pkj->pki", A, corners - centre[:, None])
+    d = np.minimum(d, box_sdf(lv, half[:, None]).min(axis=1))
+    b0, b1, _ = _box_edges(local, pair)  # (R, 12, 3)
+    e0 = np.repeat(corners, 12, axis=1)  # (R, 36, 3): triangle edge j, box edge k
+    e1 = np.repeat(np.roll(corners, -1, axis=1), 12, axis=1)
+    p0, p1 = np.tile(b0, (1, 3, 1)), np.tile(b1, (1, 3, 1))
+    flat = [x.reshape(-1, 3) for x in (p0, p1, e0, e1)]
+    s, t = closest_segment_points(*flat)
+    w = flat[0] + s[:, None] * (flat[1] - flat[0]) - (flat[2] + t[:, None] * (flat[3] -
+                                                                              flat[2]))
+    return np.minimum(d, np.linalg.norm(w, axis=1).reshape(R, 36).min(axis=1))
 
 
 def row_gaps(cm, local, ib, pair, tri, corners, tnormal) -> np.ndarray:
