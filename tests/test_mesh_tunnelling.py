@@ -52,7 +52,7 @@ from test_stepped import _rot, _unit_quat
 
 DT = 0.01
 TOLERANCE = 1e-3  # m, collision.tolerance (default)
-SPACING = 100.0  # m between cases in one scene (a case moves < 2 m per step, 6 steps)
+SPACING = 100.0  # m between cases in one scene (a case moves < 2 m per step, 4 steps)
 # Allowed depth of a body point below the face it hit: the collision tolerance (contacts
 # and impacts are found within it) plus the resting solver's slop.
 PENETRATION = 2.0 * TOLERANCE
@@ -138,7 +138,7 @@ def mesh_cases(kind, eps, mode, count, seed, folder):
     """`count` cases in one scene: case c = a static mesh (body 2c) and a 1 kg body (2c +
     1). Returns (scene text, cases)."""
     rng = np.random.default_rng(seed)
-    lines = [f"vrsim: 1\nduration: {6 * DT}\nframe_rate: {1 / DT}\ndt: {DT}\n"
+    lines = [f"vrsim: 1\nduration: {4 * DT}\nframe_rate: {1 / DT}\ndt: {DT}\n"
              f"integrator: symplectic-euler\ngravity: [0, 0, 0]\n"
              f"collision: {{impacts: {mode}}}\nbodies:"]
     material = f"material: {{restitution: {eps}, friction: 0}}"

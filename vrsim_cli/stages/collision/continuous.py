@@ -293,7 +293,24 @@ def first_mesh_contacts(cm, body_pos, body_quat, body_vel, body_angvel, ia, ib,
     xa, xb = p[c_pair], p[k + c_pair]
     rel = vel[b] + np.cross(angvel[b], point - xb) - vel[a] - np.cross(angvel[a], point - xa)
     v_n = np.einsum("ki,ki->k", rel, normal)
-    out = (pair[keep][c_pair], point - (xb - pos[b]), normal,
-           depth + np.minimum(v_n, 0.0) * when)
+    out = [(pair[keep][c_pair], point - (xb - pos[b]), normal,
+            depth + np.minimum(v_n, 0.0) * when)]
+    # Boxes and capsules turn about the point they hit: their other corners or end meet
+    # the face within the step. The face's contacts at the start (along its normal, as
+    # an analytic face's manifold) hold them; spheres do not turn onto anything else.
+    solid = np.flatnonzero(cm.geom_type[ib[pair[keep]]] != SPHERE)
+    if len(solid):
+        rows = np.concatenate([ba[pair[keep][solid]], bb[pair[keep][solid]]])
+        sub = subset(cm, np.concatenate([ia[pair[keep][solid]], ib[pair[keep][solid]]]))
+        m = len(solid)
+        world = place(sub, pos[rows], quat[rows])
+        s_pair, s_point, s_normal, s_depth = mesh_pairs.row_contacts(
+            sub, world, np.arange(m), np.arange(m) + m, tri[keep][solid],
+            float((mu * window).max(initial=0.0)) + tol)
+        face = mesh_pairs.triangles_of(sub, np.arange(m), s_pair, tri[keep][solid][s_pair])[1]
+        face = np.einsum("kij,kj->ki", world.rot[s_pair], face)  # the mesh's frame -> world
+        ok = np.abs(np.einsum("ki,ki->k", s_normal, face)) >= 1.0 - 1e-9
+        out.append((pair[keep][solid][s_pair][ok], s_point[ok], s_normal[ok], s_depth[ok]))
+    out = tuple(np.concatenate(x) for x in zip(*out))
     one = mesh_pairs.once(out[0], out[1], out[2])  # two rows touching one edge
     return tuple(x[one] for x in out)
