@@ -95,13 +95,17 @@ def segment_triangle_distance(p, q, a, b, c, normal):
     """Distance (P,) of segments p-q (P, 3) to triangles (a, b, c) with unit normals (P,
     3): 0 when the segment pierces the triangle, else the least of the end points'
     distances and the segment's distances to the three edges."""
-    d = np.minimum(point_triangle_distance(p, a, b, c), point_triangle_distance(q, a, b, c))
+    P = len(p)
+    ends = point_triangle_distance(np.concatenate([p, q]), *(np.concatenate([x, x]) for x in
+                                                             (a, b, c)))
+    d = np.minimum(ends[:P], ends[P:])
     corners = (a, b, c)
-    for j in range(3):
-        e0, e1 = corners[j], corners[(j + 1) % 3]
-        s, t = closest_segment_points(p, q, e0, e1)
-        gap = p + s[:, None] * (q - p) - (e0 + t[:, None] * (e1 - e0))
-        d = np.minimum(d, np.linalg.norm(gap, axis=1))
+    e0 = np.concatenate(corners)  # the three edges at once: (3P, 3)
+    e1 = np.concatenate([b, c, a])
+    p3, q3 = np.concatenate([p, p, p]), np.concatenate([q, q, q])
+    s, t = closest_segment_points(p3, q3, e0, e1)
+    gap = p3 + s[:, None] * (q3 - p3) - (e0 + t[:, None] * (e1 - e0))
+    d = np.minimum(d, np.linalg.norm(gap, axis=1).reshape(3, P).min(axis=0))
     hp, hq = _dot(p - a, normal), _dot(q - a, normal)
     crosses = (hp * hq < 0.0)
     if crosses.any():

@@ -93,20 +93,26 @@ def _near(cm, ia, local, margin):
     of each pair's body box; with an infinite margin, the triangles that can hold the
     least distance (their box is no farther from the body's centre than the nearest
     corner is, plus the body's reach)."""
-    pairs, tris = [], []
-    for p, g in enumerate(ia.tolist()):
+    pairs, tris = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for g in np.unique(ia).tolist():  # the pairs of one mesh at once: (pairs, triangles)
         topo = _topology(cm, g)
+        sel = np.flatnonzero(ia == g)
         if np.isfinite(margin):
-            lo, hi = local.lo[p] - margin, local.hi[p] + margin
-            keep = np.flatnonzero(np.all((topo.lo <= hi) & (topo.hi >= lo), axis=1))
+            lo, hi = local.lo[sel] - margin, local.hi[sel] + margin
+            near = np.all((topo.lo[None] <= hi[:, None]) & (topo.hi[None] >= lo[:, None]),
+                          axis=2)
         else:
-            c = local.centre[p]
-            upper = np.sqrt(((topo.corners[:, 0] - c) ** 2).sum(1)).min()
-            box = np.sqrt((np.maximum(np.maximum(topo.lo - c, c - topo.hi), 0.0) ** 2).sum(1))
-            keep = np.flatnonzero(box - local.bound[p] <= upper)
-        pairs.append(np.full(len(keep), p))
-        tris.append(keep)
-    return np.concatenate(pairs).astype(np.int64), np.concatenate(tris).astype(np.int64)
+            c = local.centre[sel][:, None]
+            upper = np.sqrt(((topo.corners[None, :, 0] - c) ** 2).sum(2)).min(axis=1)
+            box = np.sqrt((np.maximum(np.maximum(topo.lo[None] - c, c - topo.hi[None]), 0.0)
+                           ** 2).sum(2))
+            near = box - local.bound[sel][:, None] <= upper[:, None]
+        p, t = np.nonzero(near)
+        pairs.append(sel[p])
+        tris.append(t)
+    pair, tri = np.concatenate(pairs).astype(np.int64), np.concatenate(tris).astype(np.int64)
+    order = np.argsort(pair, kind="stable")
+    return pair[order], tri[order]
 
 
 def _finish(cm, ia, local, rows, margin, deepest):
