@@ -218,8 +218,9 @@ def mesh_pair_notes(data: dict, cm: CollisionModel) -> tuple:
         for h in others.tolist():
             a, b = int(cm.geom_body[g]), int(cm.geom_body[h])
             if a != b and not (static[a] and static[b]):
+                kind = {CYLINDER: "cylinder", CONVEX: "convex hull", MESH: "triangle mesh"}
                 return (f"bodies[{a}] collides as a triangle mesh with bodies[{b}], a "
-                        f"{TYPE_NAMES[int(cm.geom_type[h])]}: that pair goes to python-fcl, "
+                        f"{kind[int(cm.geom_type[h])]}: that pair goes to python-fcl, "
                         f"whose contacts are not checked against tunnelling (meshes meet "
                         f"spheres, capsules, boxes and planes in closed form, and so do the "
                         f"obb and sphere proxies; docs/collision.md)",)
