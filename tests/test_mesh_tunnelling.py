@@ -400,3 +400,24 @@ def test_sliding_over_the_inner_edges_of_a_flat_mesh(kind, mode, tmp_path):
         assert abs(s.body_vel[1, 1]) <= 1e-6
         if kind == "box":
             assert np.abs(s.body_angvel[1]).max() <= SPIN[mode], (s.t, s.body_angvel[1])
+
+
+@pytest.mark.parametrize("other, noted", [("{type: sphere, radius: 0.1}", False),
+                                          ("{type: box, size: [0.2, 0.2, 0.2]}", False),
+                                          ("{type: cylinder, radius: 0.1, length: 0.2}",
+                                           True)])
+def test_validate_notes_mesh_pairs_that_go_to_fcl(other, noted, tmp_path):
+    """Meshes meet spheres, capsules, boxes and planes in closed form (tested above);
+    against a cylinder, hull or mesh the pair goes to python-fcl, which is not: the model
+    says so in a note."""
+    _cube_stl(tmp_path)
+    (tmp_path / "s.yaml").write_text(
+        "vrsim: 1\nduration: 0.1\ndt: 0.01\ncollision: {}\nbodies:\n"
+        "  - {name: m, type: static, shape: {type: mesh, file: cube.stl}, "
+        "collision: {geometry: mesh}}\n"
+        f"  - {{name: b, mass: 1, shape: {other}, position: [0, 2, 0]}}\n")
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.scene.spec import load_scene
+
+    notes = compile_model(load_scene(str(tmp_path / "s.yaml"))).notes
+    assert any("python-fcl" in n and "bodies[1], a cylinder" in n for n in notes) == noted
