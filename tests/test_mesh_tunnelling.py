@@ -20,9 +20,10 @@ below the plane). Checked per case:
    of the mesh), nor (closed meshes, convex) inside the mesh; no corner (box), end cap
    pole (capsule) or sphere lies deeper than PENETRATION below the hit plane where it is
    over that face: at every sample in located mode, at the end in stepped mode (which
-   solves every contact at the step's start: the other end of a box or capsule turned
-   by the impact may sink into the face within the step, by up to 9 cm at 75 m/s in
-   these cases, and the position pass takes it out);
+   solves every contact at the step's start: the far corner of a box or end of a
+   capsule turned by the impact may sink into the face within the step, and the
+   position pass takes it out over the next steps; stepped scenes run 3 steps past the
+   last impact step);
 2. spheres: the bounce follows the impact law of the plane, v' = v - (1 + eps)(v.n) n
    (tangential velocity unchanged with mu = 0), to 1e-9 relative, in both modes (stepped
    mode applies restitution to the approach velocity at the step's start, which without
@@ -52,7 +53,7 @@ from test_stepped import _rot, _unit_quat
 
 DT = 0.01
 TOLERANCE = 1e-3  # m, collision.tolerance (default)
-SPACING = 100.0  # m between cases in one scene (a case moves < 2 m per step, 4 steps)
+SPACING = 100.0  # m between cases in one scene (a case moves < 2 m per step, 6 steps)
 # Allowed depth of a body point below the face it hit: the collision tolerance (contacts
 # and impacts are found within it) plus the resting solver's slop.
 PENETRATION = 2.0 * TOLERANCE
@@ -142,7 +143,8 @@ def mesh_cases(kind, eps, mode, count, seed, folder):
     """`count` cases in one scene: case c = a static mesh (body 2c) and a 1 kg body (2c +
     1). Returns (scene text, cases)."""
     rng = np.random.default_rng(seed)
-    lines = [f"vrsim: 1\nduration: {4 * DT}\nframe_rate: {1 / DT}\ndt: {DT}\n"
+    steps = 4 if mode == "located" else 6  # stepped: 3 steps after the last impact step
+    lines = [f"vrsim: 1\nduration: {steps * DT}\nframe_rate: {1 / DT}\ndt: {DT}\n"
              f"integrator: symplectic-euler\ngravity: [0, 0, 0]\n"
              f"collision: {{impacts: {mode}}}\nbodies:"]
     material = f"material: {{restitution: {eps}, friction: 0}}"

@@ -14,7 +14,9 @@ Collision Detection, ch. 5):
   ends, along the face normal); the segment's closest points to each edge; each corner's
   closest point on the segment;
 - box: its corners against each triangle (face, edge or corner of the triangle), the
-  triangle's corners against the box, and the box's edges crossing the triangle's edges.
+  triangle's corners against the box, the deepest point of each triangle edge in (or
+  nearest to) the box, the ends of the part of each box edge over the triangle, and the
+  box's edges crossing the triangle's edges.
 A face contact's normal is the face's, turned to the side of the body's centre (a mesh is
 a surface: both sides collide). Edge and corner contacts are kept only where their normal
 is one the mesh can have there (`maths.triangles.admissible`): between two coplanar
@@ -37,6 +39,8 @@ from vrsim_cli.maths.triangles import (EDGE, FACE, VERTEX, admissible, box_sdf,
 from vrsim_cli.model.collision import BOX, CAPSULE, SPHERE
 from vrsim_cli.stages.collision.contacts import no_pair_contacts
 
+GOLDEN_ITERATIONS = 48  # the bracket shrinks to 0.618^48 ~ 1e-10 of the edge
+_GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 EDGE_SLACK = 0.1  # a box edge's normal may lean this far (cosine) out of its own cone
 _INTERIOR = 1e-9  # segment parameters this close to an end are that end (a corner)
 _TRI_KEY = 1 << 32  # pair * _TRI_KEY + triangle: one key per candidate row
@@ -158,6 +162,24 @@ def _rows(cm, ia, local, margin):
     return (pair, tri) + triangles_of(cm, ia, pair, tri)
 
 
+def _prism_clip(p0, d, corners, tnormal):
+    """The parameters [s0, s1] (R,) each of the part of segments p0 + s d, s in [0, 1],
+    over triangles (R, 3, 3) of unit normals (R, 3) (inside their prisms along the
+    normal), and whether there is such a part (R,) bool."""
+    s0, s1 = np.zeros(len(p0)), np.ones(len(p0))
+    live = np.ones(len(p0), bool)
+    for j in range(3):
+        e0, e1 = corners[:, j], corners[:, (j + 1) % 3]
+        u = np.cross(tnormal, e1 - e0)  # into the triangle (counter-clockwise about n)
+        f0, df = _dot(p0 - e0, u), _dot(d, u)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cut = -f0 / df
+        s0 = np.where(df > 0.0, np.maximum(s0, cut), s0)
+        s1 = np.where(df < 0.0, np.minimum(s1, cut), s1)
+        live &= (df != 0.0) | (f0 >= 0.0)
+    return s0, s1, live & (s0 <= s1)
+
+
 def _segments(cm, ia, local, margin, pair, tri, corners, tnormal):
     """Candidate rows of segments of radius r (spheres: of length 0) against triangles."""
     p0, p1, r, centre = local.p0[pair], local.p1[pair], local.radius[pair], \
@@ -168,17 +190,8 @@ def _segments(cm, ia, local, margin, pair, tri, corners, tnormal):
     out = []
     live = np.linalg.norm(tnormal, axis=1) > 0.0  # degenerate triangles have no face
     # 1. The part of the segment over the triangle (its prism): its two ends, face normal.
-    s0, s1 = np.zeros(len(pair)), np.ones(len(pair))
-    for j in range(3):
-        e0, e1 = corners[:, j], corners[:, (j + 1) % 3]
-        u = np.cross(tnormal, e1 - e0)  # into the triangle (counter-clockwise about n)
-        f0, df = _dot(p0 - e0, u), _dot(d, u)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cut = -f0 / df
-        s0 = np.where(df > 0.0, np.maximum(s0, cut), s0)
-        s1 = np.where(df < 0.0, np.minimum(s1, cut), s1)
-        live &= (df != 0.0) | (f0 >= 0.0)
-    live &= s0 <= s1
+    s0, s1, over = _prism_clip(p0, d, corners, tnormal)
+    live &= over
     n = side[:, None] * tnormal
     for s in (s0, s1):
         rows = np.flatnonzero(live)
@@ -287,7 +300,59 @@ def _boxes(cm, ia, local, margin, pair, tri, corners, tnormal):
         on_box = centre + np.einsum("pij,pj->pi", A, surface)
         m = np.einsum("pij,pj->pi", A, m_local)
         out.append((pair, tri, np.full(len(pair), VERTEX + j), v, on_box, m, depth))
-    # 3. The box's edges across the triangle's edges.
+    # 3. The triangle's edges through the box: the deepest point of each (the box's
+    # signed distance is convex along a line: golden-section search), where a box
+    # overlapping an edge between its corners has no corner, vertex or edge crossing deep.
+    for j in range(3):
+        la = np.einsum("pji,pj->pi", A, corners[:, j] - centre)
+        lb = np.einsum("pji,pj->pi", A, corners[:, (j + 1) % 3] - centre)
+        lo, hi = np.zeros(len(pair)), np.ones(len(pair))
+        for _ in range(GOLDEN_ITERATIONS):
+            x1, x2 = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
+            f1 = box_sdf(la + x1[:, None] * (lb - la), half)
+            f2 = box_sdf(la + x2[:, None] * (lb - la), half)
+            lo, hi = np.where(f1 < f2, lo, x1), np.where(f1 < f2, x2, hi)
+        t = 0.5 * (lo + hi)
+        rows = np.flatnonzero((t > _INTERIOR) & (t < 1.0 - _INTERIOR))
+        lp = la[rows] + t[rows, None] * (lb - la)[rows]
+        h = half[rows]
+        clamped = np.clip(lp, -h, h)
+        outside = np.any(np.abs(lp) > h, axis=1)
+        gap_axis = h - np.abs(lp)
+        k = np.argmin(gap_axis, axis=1)
+        r = np.arange(len(rows))
+        sign = np.where(lp[r, k] >= 0.0, 1.0, -1.0)
+        surface = lp.copy()
+        surface[r, k] = sign * h[r, k]
+        surface = np.where(outside[:, None], clamped, surface)
+        inward = np.zeros_like(lp)
+        inward[r, k] = -sign
+        m_local, dist = _unit(surface - lp, inward)
+        m_local = np.where(outside[:, None], m_local, inward)
+        depth = np.where(outside, -dist, gap_axis[r, k])
+        Ar = A[rows]
+        out.append((pair[rows], tri[rows], np.full(len(rows), EDGE + j),
+                    centre[rows] + np.einsum("pij,pj->pi", Ar, lp),
+                    centre[rows] + np.einsum("pij,pj->pi", Ar, surface),
+                    np.einsum("pij,pj->pi", Ar, m_local), depth))
+    # 4. The part of each box edge over the triangle, its ends along the face normal:
+    # an edge that dips under the face between the triangle's edges, from a corner over
+    # the face to one beyond it.
+    R = len(pair)
+    b0, b1, _ = _box_edges(local, pair)
+    flat = lambda x: np.repeat(x, 12, axis=0)  # noqa: E731 - (R * 12, ...)
+    e_start, e_dir = b0.reshape(-1, 3), (b1 - b0).reshape(-1, 3)
+    t_corners, t_normal = flat(corners), flat(tnormal)
+    s0, s1, over = _prism_clip(e_start, e_dir, t_corners, t_normal)
+    over &= np.linalg.norm(t_normal, axis=1) > 0.0
+    n = flat(side)[:, None] * t_normal
+    for s_end in (s0, s1):
+        rows = np.flatnonzero(over & (s_end > _INTERIOR) & (s_end < 1.0 - _INTERIOR))
+        x = e_start[rows] + s_end[rows, None] * e_dir[rows]
+        h = _dot(x - t_corners[rows, 0], n[rows])
+        out.append((pair[rows // 12], tri[rows // 12], np.full(len(rows), FACE),
+                    x - h[:, None] * n[rows], x, n[rows], -h))
+    # 5. The box's edges across the triangle's edges.
     b0, b1, bfaces = _box_edges(local, pair)
     for j in range(3):
         e0, e1 = corners[:, j], corners[:, (j + 1) % 3]
