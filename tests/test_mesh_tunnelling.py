@@ -382,7 +382,7 @@ def test_sliding_over_the_inner_edges_of_a_flat_mesh(kind, mode, tmp_path):
     shape = "{type: sphere, radius: 0.2}" if kind == "sphere" else \
         "{type: box, size: [0.4, 0.3, 0.5]}"
     (tmp_path / "s.yaml").write_text(
-        "vrsim: 1\nduration: 1.0\ndt: 0.01\nframe_rate: 100\nintegrator: verlet\n"
+        "vrsim: 1\nduration: 1.0\ndt: 0.01\nframe_rate: 100\nintegrator: symplectic-euler\n"
         f"collision: {{impacts: {mode}}}\nbodies:\n"
         "  - {name: m, type: static, shape: {type: mesh, file: grid.obj}, "
         "collision: {geometry: mesh}, material: {restitution: 0, friction: 0}}\n"
