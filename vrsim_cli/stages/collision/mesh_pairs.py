@@ -258,6 +258,27 @@ _EDGE_MID, _EDGE_DIR, _EDGE_FACES = (np.array(x, float) for x in zip(*[
     for i in range(3) for sj in (-1.0, 1.0) for sk in (-1.0, 1.0)]))
 
 
+def _onto_box(lp, half):
+    """Points lp (R, 3) in a box's frame against the box of half extents (R, 3): the
+    box's surface point that meets them (outside: the clamped point; inside: out of the
+    nearest face), the unit normal (R, 3) from the point to the box's side that pushes
+    the box away, and the depth (R,) (negative: a gap)."""
+    clamped = np.clip(lp, -half, half)
+    outside = np.any(np.abs(lp) > half, axis=1)
+    gap_axis = half - np.abs(lp)
+    k = np.argmin(gap_axis, axis=1)
+    r = np.arange(len(lp))
+    sign = np.where(lp[r, k] >= 0.0, 1.0, -1.0)
+    surface = lp.copy()
+    surface[r, k] = sign * half[r, k]
+    surface = np.where(outside[:, None], clamped, surface)
+    inward = np.zeros_like(lp)
+    inward[r, k] = -sign  # into the box, out of its nearest face
+    m_local, dist = _unit(surface - lp, inward)
+    m_local = np.where(outside[:, None], m_local, inward)
+    return surface, m_local, np.where(outside, -dist, gap_axis[r, k])
+
+
 def _boxes(cm, ia, local, margin, pair, tri, corners, tnormal):
     """Candidate rows of boxes against triangles."""
     centre = local.centre[pair]
@@ -283,20 +304,7 @@ def _boxes(cm, ia, local, margin, pair, tri, corners, tnormal):
     for j in range(3):
         v = corners[:, j]
         lv = np.einsum("pji,pj->pi", A, v - centre)
-        clamped = np.clip(lv, -half, half)
-        outside = np.any(np.abs(lv) > half, axis=1)
-        gap_axis = half - np.abs(lv)
-        k = np.argmin(gap_axis, axis=1)
-        rows = np.arange(len(pair))
-        sign = np.where(lv[rows, k] >= 0.0, 1.0, -1.0)
-        surface = lv.copy()
-        surface[rows, k] = sign * half[rows, k]
-        surface = np.where(outside[:, None], clamped, surface)
-        inward = np.zeros_like(lv)
-        inward[rows, k] = -sign  # into the box, out of its nearest face
-        m_local, dist = _unit(surface - lv, inward)
-        m_local = np.where(outside[:, None], m_local, inward)
-        depth = np.where(outside, -dist, gap_axis[rows, k])
+        surface, m_local, depth = _onto_box(lv, half)
         on_box = centre + np.einsum("pij,pj->pi", A, surface)
         m = np.einsum("pij,pj->pi", A, m_local)
         out.append((pair, tri, np.full(len(pair), VERTEX + j), v, on_box, m, depth))
@@ -315,21 +323,7 @@ def _boxes(cm, ia, local, margin, pair, tri, corners, tnormal):
         t = 0.5 * (lo + hi)
         rows = np.flatnonzero((t > _INTERIOR) & (t < 1.0 - _INTERIOR))
         lp = la[rows] + t[rows, None] * (lb - la)[rows]
-        h = half[rows]
-        clamped = np.clip(lp, -h, h)
-        outside = np.any(np.abs(lp) > h, axis=1)
-        gap_axis = h - np.abs(lp)
-        k = np.argmin(gap_axis, axis=1)
-        r = np.arange(len(rows))
-        sign = np.where(lp[r, k] >= 0.0, 1.0, -1.0)
-        surface = lp.copy()
-        surface[r, k] = sign * h[r, k]
-        surface = np.where(outside[:, None], clamped, surface)
-        inward = np.zeros_like(lp)
-        inward[r, k] = -sign
-        m_local, dist = _unit(surface - lp, inward)
-        m_local = np.where(outside[:, None], m_local, inward)
-        depth = np.where(outside, -dist, gap_axis[r, k])
+        surface, m_local, depth = _onto_box(lp, half[rows])
         Ar = A[rows]
         out.append((pair[rows], tri[rows], np.full(len(rows), EDGE + j),
                     centre[rows] + np.einsum("pij,pj->pi", Ar, lp),
