@@ -204,6 +204,29 @@ def mesh_geom(body: int, shape: dict, geometry: str) -> dict:
     return row
 
 
+def mesh_pair_notes(data: dict, cm: CollisionModel) -> tuple:
+    """Notes for triangle meshes (geometry mesh) that can meet a cylinder, a hull or
+    another mesh (one of the two bodies not static): those pairs go to python-fcl, whose
+    contacts against triangles are not checked for tunnelling (spheres, capsules, boxes
+    and planes are: closed forms, stages/collision/mesh_pairs.py)."""
+    bodies = data.get("bodies") or []
+    static = [i < len(bodies) and bodies[i].get("type") == "static"
+              for i in range(int(cm.geom_body.max(initial=-1)) + 1)]
+    meshes = np.flatnonzero(cm.geom_type == MESH)
+    others = np.flatnonzero(np.isin(cm.geom_type, (CYLINDER, CONVEX, MESH)))
+    for g in meshes.tolist():
+        for h in others.tolist():
+            a, b = int(cm.geom_body[g]), int(cm.geom_body[h])
+            if a != b and not (static[a] and static[b]):
+                kind = {CYLINDER: "cylinder", CONVEX: "convex hull", MESH: "triangle mesh"}
+                return (f"bodies[{a}] collides as a triangle mesh with bodies[{b}], a "
+                        f"{kind[int(cm.geom_type[h])]}: that pair goes to python-fcl, "
+                        f"whose contacts are not checked against tunnelling (meshes meet "
+                        f"spheres, capsules, boxes and planes in closed form, and so do the "
+                        f"obb and sphere proxies; docs/collision.md)",)
+    return ()
+
+
 def scene_proxy_report(model, samples: int = PROXY_SAMPLES) -> list[dict]:
     """`proxy_errors` for every mesh body of a compiled model, with the geometry the body
     collides with (its collision.geometry, or 'none' without a collision block)."""

@@ -261,9 +261,12 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
             raise InputError(problems)
 
     collision = response = None
+    mesh_notes = ()
     if data.get("collision") is not None:
-        from vrsim_cli.model.collision import compile_collision  # only scenes that collide
-        collision = compile_collision(scene, shapes, dim, problems)
+        from vrsim_cli.model.collision import compile_collision, mesh_pair_notes
+        collision = compile_collision(scene, shapes, dim, problems)  # only scenes that collide
+        if collision is not None:
+            mesh_notes = mesh_pair_notes(data, collision)
         response = None
         if collision is not None:
             from vrsim_cli.model.response import compile_response
@@ -312,7 +315,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         body_index={name: i for i, name in enumerate(names)},
         observer=observer,
         inputs=inputs,
-        notes=_notes(data) + rigid_notes(data) + window_notes,
+        notes=_notes(data) + rigid_notes(data) + window_notes + mesh_notes,
         # Static and kinematic bodies with analytic shapes (meshes join with collision).
         observer_obstacles=tuple(i for i, (kind, shape) in enumerate(zip(kinds, shapes))
                                  if kind != BODY_DYNAMIC and shape is not None

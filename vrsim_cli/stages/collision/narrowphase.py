@@ -6,7 +6,8 @@ Every pair function has the signature
 where ia, ib (P,) are geom indices of P candidate pairs, `pair` says which candidate each
 of the k contacts belongs to, normal points from geom ia to geom ib, and only contacts with
 depth >= -margin are returned. `point` is the midpoint of the two witness points.
-Pairs without a closed form here (cylinder, convex hull, mesh) go to python-fcl
+Triangle meshes against spheres, capsules and boxes are in `mesh_pairs`. Pairs without
+a closed form here (cylinder, convex hull, mesh against the others) go to python-fcl
 (`fcl_adapter`).
 """
 
@@ -17,7 +18,9 @@ import numpy as np
 from vrsim_cli.maths.products import matmul, norm
 
 from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
-from vrsim_cli.stages.collision import fcl_adapter
+from vrsim_cli.maths.triangles import box_sdf as _box_sdf
+from vrsim_cli.maths.triangles import closest_segment_points
+from vrsim_cli.stages.collision import fcl_adapter, mesh_pairs
 from vrsim_cli.stages.collision.contacts import no_pair_contacts
 
 _EPS = 1e-12
@@ -214,27 +217,6 @@ def plane_capsule(cm, world, ia, ib, margin):
                  margin)
 
 
-def closest_segment_points(p1, q1, p2, q2):
-    """Parameters s, t (P,) of the closest points p1 + s (q1 - p1), p2 + t (q2 - p2) of two
-    segments (Ericson, Real-Time Collision Detection, 5.1.9), vectorised."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e, f = _dot(d1, d1), _dot(d2, d2), _dot(d2, r)
-    c, b = _dot(d1, r), _dot(d1, d2)
-    denom = a * e - b * b
-    safe_a, safe_e = np.maximum(a, _EPS), np.maximum(e, _EPS)
-    s = np.where(denom > _EPS * np.maximum(a * e, _EPS),
-                 np.clip((b * f - c * e) / np.where(denom > 0, denom, 1.0), 0.0, 1.0), 0.0)
-    t = (b * s + f) / safe_e
-    s = np.where(t < 0.0, np.clip(-c / safe_a, 0.0, 1.0), np.where(
-        t > 1.0, np.clip((b - c) / safe_a, 0.0, 1.0), s))
-    t = np.clip(t, 0.0, 1.0)
-    s = np.where(a <= _EPS, 0.0, s)
-    t = np.where(a <= _EPS, np.clip(f / safe_e, 0.0, 1.0), t)
-    t = np.where(e <= _EPS, 0.0, t)
-    s = np.where((e <= _EPS) & (a > _EPS), np.clip(-c / safe_a, 0.0, 1.0), s)
-    return s, t
-
-
 PARALLEL_SIN = 1e-3  # capsule axes closer than this (sine of the angle) count as parallel
 
 
@@ -275,11 +257,6 @@ def capsule_capsule(cm, world, ia, ib, margin):
     order = np.argsort(pair, kind="stable")
     return _keep(pair[order], np.concatenate(points)[order], np.concatenate(normals)[order],
                  np.concatenate(depths)[order], margin)
-
-
-def _box_sdf(local, half):
-    q = np.abs(local) - half
-    return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
 
 
 def box_capsule(cm, world, ia, ib, margin):
@@ -564,6 +541,9 @@ DISPATCH = {
     (CYLINDER, SPHERE): cylinder_sphere,
     (PLANE, CONVEX): plane_vertices,
     (PLANE, MESH): plane_vertices,
+    (MESH, SPHERE): mesh_pairs.mesh_sphere,
+    (MESH, CAPSULE): mesh_pairs.mesh_capsule,
+    (MESH, BOX): mesh_pairs.mesh_box,
 }
 
 

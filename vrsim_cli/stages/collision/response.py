@@ -60,6 +60,7 @@ ROOT_ITERATIONS = 200
 ROOT_TOLERANCE = 1e-13  # of the step: the time of impact is found to this fraction
 MARCH_STEPS = 1024  # conservative-advancement steps along the path before sampling the rest
 LEAVE_SAMPLES = 16  # samples of the rest of the step after MARCH_STEPS
+ARM_ROUNDOFF = 1e-12  # of the coordinates: a turning pair's gap must open beyond this
 WARM_RADIUS = 0.02  # m: a contact within this of last step's (same pair) inherits its impulse
 
 
@@ -318,7 +319,13 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
     mu = approach_bound(cm, s, end, ia, ib)
     sep0 = separations(0.0)
     turns = np.array([p in turning for p in pairs])
-    arm = np.where(back, np.where(turns, np.maximum(sep0, 0.0), 0.0), -np.inf)
+    # A turning pair takes part once its gap has opened beyond round-off: a body sliding
+    # off the face it rests on (a sphere leaving a mesh's face sideways) has a gap that
+    # only wobbles by ulps of its coordinates, and each wobble below 0 was an "impact"
+    # (64 events of 2e-5 s filled a step, and a later impact in it was lost).
+    noise = ARM_ROUNDOFF * (1.0 + float(np.abs(s.body_pos[np.concatenate([
+        [p[0] for p in pairs], [p[1] for p in pairs]])]).max()))
+    arm = np.where(back, np.where(turns, np.maximum(sep0, 0.0) + noise, 0.0), -np.inf)
     bracket = _march(separations, sep0, arm, toi, h, mu, cm.tolerance)
     if bracket is None:
         return None

@@ -157,7 +157,24 @@ def _python_contacts(model: Model, state: State, tb: dict) -> np.ndarray:
     if not len(ia):
         return tb["no_rows"]
     margin = float((reach[cm.geom_body[ia]] + reach[cm.geom_body[ib]]).max()) + cm.tolerance
-    c = to_contacts(cm, ia, ib, *narrow_phase(cm, world, ia, ib, margin))
+    # triangle meshes against spheres, capsules and boxes: the triangles touching now and
+    # the first ones reached, not every triangle within reach (continuous.py)
+    mesh = np.zeros(len(ia), bool)
+    for m, o in ((ia, ib), (ib, ia)):
+        mesh |= (cm.geom_type[m] == MESH) & np.isin(cm.geom_type[o], (SPHERE, CAPSULE, BOX))
+    rest = np.flatnonzero(~mesh)
+    parts = [to_contacts(cm, ia[rest], ib[rest], *narrow_phase(cm, world, ia[rest], ib[rest],
+                                                               margin))]
+    sel = np.flatnonzero(mesh)
+    if len(sel):
+        from vrsim_cli.stages.collision.continuous import first_mesh_contacts
+
+        flip = cm.geom_type[ia[sel]] != MESH
+        m_, o_ = np.where(flip, ib[sel], ia[sel]), np.where(flip, ia[sel], ib[sel])
+        vel = state.body_vel + dt * np.where(moving[:, None], model.gravity, 0.0)
+        parts.append(to_contacts(cm, m_, o_, *first_mesh_contacts(
+            cm, state.body_pos, state.body_quat, vel, state.body_angvel, m_, o_, 2.0 * dt)))
+    c = Contacts.concatenate(parts)
     rows = np.zeros((len(c), kc.C_SIZE))
     rows[:, kc.C_A] = c.body_a
     rows[:, kc.C_B] = c.body_b
