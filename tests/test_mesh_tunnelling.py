@@ -48,7 +48,6 @@ import pytest
 import trimesh
 
 from conftest import Steps
-from vrsim_cli.errors import SimulationError
 from test_stepped import _rot, _unit_quat
 
 DT = 0.01
@@ -270,19 +269,10 @@ def sphere_truth(case, eps, mode, t):
     return start + out * (t - j * DT), out
 
 
-ENERGY = pytest.mark.xfail(
-    raises=SimulationError, strict=True,
-    reason="located mode gains energy after fast impacts of spinning boxes (issue 15, "
-           "item 4): the energy guard stops the scene; the same cases against an analytic "
-           "plane through the hit face stop the same way (not a mesh problem)")
-
-
 @pytest.mark.parametrize("mode", ["located", "stepped"])
 @pytest.mark.parametrize("eps", [0.0, 0.5, 1.0])
 @pytest.mark.parametrize("kind", ["sphere", "box", "capsule"])
-def test_no_body_ends_on_the_far_side_of_a_mesh(kind, eps, mode, tmp_path, request):
-    if (kind, eps, mode) == ("box", 1.0, "located"):
-        request.applymarker(ENERGY)
+def test_no_body_ends_on_the_far_side_of_a_mesh(kind, eps, mode, tmp_path):
     seed = 1000 * ["sphere", "box", "capsule"].index(kind) + 10 * int(2 * eps) + \
         (mode == "stepped")
     bad = []
