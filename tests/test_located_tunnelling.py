@@ -54,7 +54,8 @@ import numpy as np
 import pytest
 
 from conftest import simulate
-from test_stepped import SPACING, WALL_HALF_SIDE, WALL_HALF_THICKNESS, _rot, _unit_quat
+from test_stepped import (SPACING, WALL_HALF_SIDE, WALL_HALF_THICKNESS, _rot, _unit_quat,
+                          random_shape)
 
 DT = 0.01
 TOLERANCE = 1e-3  # m, collision.tolerance (default)
@@ -136,15 +137,7 @@ def impact_cases(kind, eps, count, seed, plates):
         else:
             half, mass, plate_vel, reach = WALL_HALF_SIDE, None, np.zeros(3), 1.0
         osize = [2 * half, 2 * half, 2 * WALL_HALF_THICKNESS]
-        if kind == "sphere":
-            size = [float(rng.uniform(0.02, 0.3))]
-            shape = f"{{type: sphere, radius: {size[0]!r}}}"
-        elif kind == "box":
-            size = rng.uniform(0.02, 0.5, size=3).tolist()
-            shape = f"{{type: box, size: {size!r}}}"
-        else:
-            size = [float(rng.uniform(0.02, 0.2)), float(rng.uniform(0.02, 0.6))]
-            shape = f"{{type: capsule, radius: {size[0]!r}, length: {size[1]!r}}}"
+        size, shape = random_shape(rng, kind)
         while True:  # one point of first contact: the next is beyond the tolerance
             qb = _unit_quat(rng)
             R = _rot(qb)

@@ -48,7 +48,7 @@ import pytest
 import trimesh
 
 from conftest import Steps
-from test_stepped import _rot, _unit_quat
+from test_stepped import _rot, _unit_quat, random_shape
 
 DT = 0.01
 TOLERANCE = 1e-3  # m, collision.tolerance (default)
@@ -176,15 +176,7 @@ def mesh_cases(kind, eps, mode, count, seed, folder):
                 abs((tris[k, 0] - tris[t, 0]) @ n) < 1e-9 * size_m]
         w = rng.dirichlet([4.0, 4.0, 4.0])  # an inner point, away from the edges
         touch = w @ tris[t]
-        if kind == "sphere":
-            size = [float(rng.uniform(0.02, 0.3))]
-            shape = f"{{type: sphere, radius: {size[0]!r}}}"
-        elif kind == "box":
-            size = rng.uniform(0.02, 0.5, size=3).tolist()
-            shape = f"{{type: box, size: {size!r}}}"
-        else:
-            size = [float(rng.uniform(0.02, 0.2)), float(rng.uniform(0.02, 0.6))]
-            shape = f"{{type: capsule, radius: {size[0]!r}, length: {size[1]!r}}}"
+        size, shape = random_shape(rng, kind)
         qb = _unit_quat(rng)
         R = _rot(qb)
         speed = float(np.exp(rng.uniform(np.log(1.0), np.log(200.0))))

@@ -30,6 +30,19 @@ def _rot(q):
                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
+def random_shape(rng, kind: str) -> tuple[list, str]:
+    """(size, YAML flow mapping) of a random sphere, box or capsule (0.02-0.6 m)."""
+    if kind == "sphere":
+        size = [float(rng.uniform(0.02, 0.3))]
+        return size, f"{{type: sphere, radius: {size[0]!r}}}"
+    if kind == "box":
+        size = rng.uniform(0.02, 0.5, size=3).tolist()
+        return size, f"{{type: box, size: {size!r}}}"
+    size = [float(rng.uniform(0.02, 0.2)), float(rng.uniform(0.02, 0.6))]
+    return size, f"{{type: capsule, radius: {size[0]!r}, length: {size[1]!r}}}"
+
+
+
 def _unit_quat(rng):
     q = rng.normal(size=4)
     return q / np.linalg.norm(q)

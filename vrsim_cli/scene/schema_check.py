@@ -180,12 +180,18 @@ def _numeric(node) -> list[Check]:
     return [check]
 
 
-def _string(node) -> list[Check]:
+def _lengths(node, kind: type, low: str, high: str) -> list[Check]:
+    """minLength/maxLength (str) or minItems/maxItems (list): they apply to `kind` only."""
     out: list[Check] = []
-    if "minLength" in node:
-        out.append(lambda v, n=node["minLength"]: type(v) is not str or len(v) >= n)
-    if "maxLength" in node:
-        out.append(lambda v, n=node["maxLength"]: type(v) is not str or len(v) <= n)
+    if low in node:
+        out.append(lambda v, n=node[low]: type(v) is not kind or len(v) >= n)
+    if high in node:
+        out.append(lambda v, n=node[high]: type(v) is not kind or len(v) <= n)
+    return out
+
+
+def _string(node) -> list[Check]:
+    out = _lengths(node, str, "minLength", "maxLength")
     if "pattern" in node:
         rx = re.compile(node["pattern"])
         out.append(lambda v, r=rx: type(v) is not str or r.search(v) is not None)
@@ -193,11 +199,7 @@ def _string(node) -> list[Check]:
 
 
 def _array(node, build) -> list[Check]:
-    out: list[Check] = []
-    if "minItems" in node:
-        out.append(lambda v, n=node["minItems"]: type(v) is not list or len(v) >= n)
-    if "maxItems" in node:
-        out.append(lambda v, n=node["maxItems"]: type(v) is not list or len(v) <= n)
+    out = _lengths(node, list, "minItems", "maxItems")
     if "items" in node:
         item = build(node["items"])
         out.append(lambda v, c=item: type(v) is not list or all(c(x) for x in v))
