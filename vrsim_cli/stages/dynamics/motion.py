@@ -158,12 +158,23 @@ def packed(model: Model) -> np.ndarray:
         # dopri5: steps of (w h)^5 ~ tolerance, h = tol^(1/5) / w, tol^(-1/5) per radian
         param[kd.P_STEPS_PER_TURN] = rigid.tolerance ** -0.2 if rigid.tolerance > 0 else 0.0
     counts = {"n": n, "r": len(rot), "f": nf, "k": len(torque), "s": len(spring)}
-    # the quadrature tables only where the kernel reads them (P_EXACT_FLOW)
-    gl = free_flow.gauss_tables() if param[kd.P_EXACT_FLOW] else free_flow.no_tables()
+    # the quadrature tables only where the kernel may read them: the exact flow, chosen
+    # (P_EXACT_FLOW) or taken by a drift that turns a non-spherical body too far to split
+    # (`too_far_to_split`, any integrator: stepped impacts drift with symplectic Euler)
+    gl = free_flow.gauss_tables() if param[kd.P_EXACT_FLOW] or _anisotropic(model) \
+        else free_flow.no_tables()
     mf = kd.pack(counts, {"body": body, "force": force, "torque": torque, "spring": spring,
                           "rot": rot}, param, gl)
     model.cache["dynamics"] = mf
     return mf
+
+
+def _anisotropic(model: Model) -> bool:
+    """Whether a rotating body's principal moments differ (as `too_far_to_split` tests)."""
+    if model.rigid is None or not model.rigid.n_rot:
+        return False
+    moments = np.reshape(model.rigid.rot_moments, (-1, 3))
+    return bool(np.any(moments[:, 2] - moments[:, 0] > 1e-12 * moments[:, 2]))
 
 
 def _scratch(model: Model):
