@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from numba.core.caching import NullCache
 
 from vrsim_cli.kernels.jit import JIT_DISABLED, kernel
 
@@ -36,6 +37,12 @@ def _pick(t, j):
 @kernel
 def _first_of_mixed(x):
     return _pick((x, 2), 0)  # an index into a (float, int) tuple must be a literal
+
+
+# Typed afresh in every run: a caller loaded from the disk cache (a second run of this
+# file) never types its callees, and the signatures checked below stay empty.
+for _dispatcher in (_put3, _fill, _pick, _first_of_mixed):
+    _dispatcher._cache = NullCache()
 
 
 def test_a_helper_called_with_three_constants_compiles_once():
