@@ -32,10 +32,11 @@ def quat_mul(a, b):
             w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
 
 
-def box_on_slope(rng, th, yaw, size, mu):
+def box_on_slope(rng, th, yaw, size, mu, collision="{}"):
     """(start position (3,) m, orientation quaternion, sampled states) of a box of `size`
     at rest on a plane tilted by th about z, turned by yaw about the plane's normal, for
-    5 s; mass, dt (10 ms or 1/60 s) and integrator (verlet or rk4) drawn from rng."""
+    5 s; mass, dt (10 ms or 1/60 s) and integrator (verlet or rk4) drawn from rng.
+    `collision`: the scene's collision block (YAML flow)."""
     mass = float(rng.uniform(0.2, 10.0))
     dt = float(rng.choice([0.01, 1 / 60]))
     integrator = str(rng.choice(["verlet", "rk4"]))
@@ -50,7 +51,7 @@ frame_rate: 10
 dt: {dt!r}
 integrator: {integrator}
 gravity: [0, -9.81, 0]
-collision: {{}}
+collision: {collision}
 bodies:
   - {{name: slope, type: static, shape: {{type: plane, normal: {normal}}},
      material: {{friction: {mu!r}}}}}
@@ -60,11 +61,9 @@ bodies:
     return position, q, states
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_a_box_that_friction_can_hold_does_not_creep(seed):
-    """Random slope 5-60 degrees, mu from 1.05 tan(th) + 0.02 up, box sizes and mass (not
-    so tall that it tips over), a turn about the slope's normal, dt in {10 ms, 1/60 s},
-    verlet or rk4: over 5 s the box moves <= 1e-6 m (the issue's bound)."""
+def draw_holding(seed):
+    """(rng, slope deg, slope rad, yaw rad, size (3,) m, mu) of a box that friction holds:
+    slope 5-60 degrees, mu from 1.05 tan(th) + 0.02 up, not so tall that it tips over."""
     rng = np.random.default_rng(seed)
     while True:  # a box that would tip over (a tall one on a steep slope) is redrawn
         theta = float(rng.uniform(5.0, 60.0))
@@ -78,6 +77,34 @@ def test_a_box_that_friction_can_hold_does_not_creep(seed):
         if size[1] * math.tan(th) < 0.8 * extent:
             break
     mu = float(min(1.05 * math.tan(th) + 0.02 + rng.uniform(0.0, 0.5), 5.0))
+    return rng, theta, th, yaw, size, mu
+
+
+def draw_sliding(seed):
+    """(rng, slope deg, slope rad, yaw rad, size (3,) m, mu) of a box that slides: slope
+    5-60 degrees, mu in [0, 0.95 tan(th)), not so tall that the centre of pressure,
+    mu h / 2 down the slip line, leaves the footprint."""
+    rng = np.random.default_rng(100 + seed)
+    while True:
+        theta = float(rng.uniform(5.0, 60.0))
+        th = math.radians(theta)
+        mu = float(rng.uniform(0.0, 0.95) * math.tan(th))
+        size = [float(x) for x in rng.uniform(0.1, 0.8, 3)]
+        yaw = float(rng.uniform(0.0, 2 * math.pi))
+        # half the footprint's chord along the slip line through the centre
+        chord = min(0.5 * size[0] / max(abs(math.cos(yaw)), 1e-12),
+                    0.5 * size[2] / max(abs(math.sin(yaw)), 1e-12))
+        if 0.5 * size[1] * mu < 0.8 * chord:
+            break
+    return rng, theta, th, yaw, size, mu
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_box_that_friction_can_hold_does_not_creep(seed):
+    """Random slope 5-60 degrees, mu from 1.05 tan(th) + 0.02 up, box sizes and mass (not
+    so tall that it tips over), a turn about the slope's normal, dt in {10 ms, 1/60 s},
+    verlet or rk4: over 5 s the box moves <= 1e-6 m (the issue's bound)."""
+    rng, theta, th, yaw, size, mu = draw_holding(seed)
     position, _, states = box_on_slope(rng, th, yaw, size, mu)
     moved = max(float(np.linalg.norm(s.body_pos[1] - position)) for s in states)
     assert moved <= 1e-6, (theta, mu, moved)
@@ -97,18 +124,7 @@ def test_a_sliding_box_accelerates_at_g_sin_minus_mu_cos_without_turning(seed):
     turn about the normal, dt in {10 ms, 1/60 s}, verlet or rk4, from rest: over 5 s the
     position is x0 + a t^2 / 2 down the slope with a = g (sin th - mu cos th), velocity a t,
     both to 1e-6 relative (the issue's bound), and the box turns by <= 1e-6 rad."""
-    rng = np.random.default_rng(100 + seed)
-    while True:
-        theta = float(rng.uniform(5.0, 60.0))
-        th = math.radians(theta)
-        mu = float(rng.uniform(0.0, 0.95) * math.tan(th))
-        size = [float(x) for x in rng.uniform(0.1, 0.8, 3)]
-        yaw = float(rng.uniform(0.0, 2 * math.pi))
-        # half the footprint's chord along the slip line through the centre
-        chord = min(0.5 * size[0] / max(abs(math.cos(yaw)), 1e-12),
-                    0.5 * size[2] / max(abs(math.sin(yaw)), 1e-12))
-        if 0.5 * size[1] * mu < 0.8 * chord:
-            break
+    rng, theta, th, yaw, size, mu = draw_sliding(seed)
     position, q, states = box_on_slope(rng, th, yaw, size, mu)
     a = 9.81 * (math.sin(th) - mu * math.cos(th))
     down = np.array([-math.cos(th), -math.sin(th), 0.0])
