@@ -4,12 +4,16 @@
 semantics (no reassociation, no FMA contraction), so results are bit-identical across
 runs, across the CPUs that run the same x86-64 code, and with the JIT off.
 
-Cache: compiled machine code is kept in `cache_dir()`: $VRSIM_CACHE_DIR, else
-$NUMBA_CACHE_DIR when the user set it, else $XDG_CACHE_HOME/vrsim/numba (default
-~/.cache/vrsim/numba). numba keys each entry by the source file's timestamp, the
-argument types and the CPU, so an upgrade or another machine recompiles by itself. When
-that folder cannot be created or written, kernels are compiled in memory for the run
-(a few seconds each time) and `cache_note()` says why.
+Cache: compiled machine code is kept in `cache_dir()`: a folder `src-<digest>` inside
+$VRSIM_CACHE_DIR, else $NUMBA_CACHE_DIR when the user set it, else
+$XDG_CACHE_HOME/vrsim/numba (default ~/.cache/vrsim/numba). The digest is of every
+kernel's source (this folder's .py files): numba keys an entry by the timestamp of the
+file that defines the kernel only, so a changed callee in another file (a kernel inlines
+linalg's and dynamics' functions) could load stale machine code; and entries written by
+versions before the cache's saves were locked (possibly another variant's code) are
+never read again. numba also keys by argument types and CPU, so another machine
+recompiles by itself. When that folder cannot be created or written, kernels are
+compiled in memory for the run (a few seconds each time) and `cache_note()` says why.
 
 First run: the first compilation of a run prints one line on stderr ("compiling ...") and
 `compile_report()` gives the seconds spent compiling, which `vrsim run` prints after it.
@@ -37,6 +41,19 @@ def _default_dir() -> Path:
     return Path(base) / "vrsim" / "numba"
 
 
+def _source_digest() -> str:
+    """16 hex digits of sha256 over the kernels' sources (name and bytes of each .py file
+    of this package folder, in name order): ~1 ms."""
+    import hashlib
+
+    h = hashlib.sha256()
+    here = Path(__file__).resolve().parent
+    for path in sorted(here.glob("*.py")):
+        h.update(path.name.encode() + b"\0")
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def _writable(folder: Path) -> bool:
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -51,7 +68,7 @@ def _configure() -> None:
     """Point numba's cache at our folder before numba is imported."""
     if "dir" in _CACHE:
         return
-    folder = _default_dir()
+    folder = _default_dir() / f"src-{_source_digest()}"
     if _writable(folder):
         _CACHE["dir"], _CACHE["note"] = folder, None
         os.environ["NUMBA_CACHE_DIR"] = str(folder)
