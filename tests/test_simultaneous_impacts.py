@@ -54,19 +54,17 @@ CASES = [(i, eps, mu, integ, dt) for i, (eps, mu, integ, dt) in zip(
                                                  ("rk4", "verlet"), (0.01, 1 / 60))))]
 
 
-@pytest.mark.parametrize("pose,eps,mu,integrator,dt", CASES)
-def test_a_box_dropped_flat_rebounds_straight_without_spin(pose, eps, mu, integrator, dt):
-    """A 0.4 x 0.3 x 0.2 m box in one of its 24 axis-aligned poses, dropped from rest
-    with its lowest face d = 0.8 m above the ground: it meets the ground at t_i =
-    sqrt(2 d / g) with v = g t_i and leaves at eps v straight up, without turning (the
-    four corners are one impact). Checked one step after the impact: v_y = eps v -
-    g (t - t_i) (0 for eps = 0: it rests), no horizontal velocity, no spin."""
+def drop_flat(pose, eps, mu, integrator, dt, collision: str, steps_after: int):
+    """(impact time t_i s, final state) of a 0.4 x 0.3 x 0.2 m box, 1.3 kg, in axis-aligned
+    pose `pose`, dropped from rest with its lowest face 0.8 m above a ground plane, run
+    until steps_after - 1 to steps_after steps after t_i. `collision`: the scene's
+    collision block (YAML flow)."""
     R = axis_aligned_rotations()[pose]
     size = np.array([0.4, 0.3, 0.2])
     half_height = float(0.5 * abs(R @ size)[1])
     d = 0.8
     t_i = math.sqrt(2 * d / G)
-    duration = (math.floor(t_i / dt) + 2) * dt  # one to two steps after the impact
+    duration = (math.floor(t_i / dt) + steps_after) * dt
     _, _, s = simulate(f"""
 vrsim: 1
 duration: {duration!r}
@@ -74,7 +72,7 @@ frame_rate: {1 / dt!r}
 dt: {dt!r}
 integrator: {integrator}
 gravity: [0, -{G}, 0]
-collision: {{}}
+collision: {collision}
 bodies:
   - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
      material: {{restitution: {eps}, friction: {mu}}}}}
@@ -82,6 +80,17 @@ bodies:
      orientation: {quat_of(R)}, shape: {{type: box, size: {size.tolist()}}},
      material: {{restitution: {eps}, friction: {mu}}}}}
 """)
+    return t_i, s
+
+
+@pytest.mark.parametrize("pose,eps,mu,integrator,dt", CASES)
+def test_a_box_dropped_flat_rebounds_straight_without_spin(pose, eps, mu, integrator, dt):
+    """A 0.4 x 0.3 x 0.2 m box in one of its 24 axis-aligned poses, dropped from rest
+    with its lowest face d = 0.8 m above the ground: it meets the ground at t_i =
+    sqrt(2 d / g) with v = g t_i and leaves at eps v straight up, without turning (the
+    four corners are one impact). Checked one step after the impact: v_y = eps v -
+    g (t - t_i) (0 for eps = 0: it rests), no horizontal velocity, no spin."""
+    t_i, s = drop_flat(pose, eps, mu, integrator, dt, "{}", 2)
     v = G * t_i
     expected = eps * v - G * (s.t - t_i) if eps > 0 else 0.0
     assert s.body_vel[1, 1] == pytest.approx(expected, abs=1e-9)

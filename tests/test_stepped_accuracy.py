@@ -31,9 +31,8 @@ import math
 import numpy as np
 import pytest
 
-from conftest import simulate
 from test_incline import box_on_slope, draw_holding, draw_sliding, turned
-from test_simultaneous_impacts import CASES, G, axis_aligned_rotations, quat_of
+from test_simultaneous_impacts import CASES, G, drop_flat
 
 STEPPED = "{impacts: stepped}"
 
@@ -76,27 +75,7 @@ def step_of(states) -> float:
 
 @pytest.mark.parametrize("pose,eps,mu,integrator,dt", CASES)
 def test_a_stepped_box_dropped_flat_rebounds_without_spin(pose, eps, mu, integrator, dt):
-    R = axis_aligned_rotations()[pose]
-    size = np.array([0.4, 0.3, 0.2])
-    half_height = float(0.5 * abs(R @ size)[1])
-    d = 0.8
-    t_i = math.sqrt(2 * d / G)
-    duration = (math.floor(t_i / dt) + 4) * dt  # two to four steps after the landing
-    _, _, s = simulate(f"""
-vrsim: 1
-duration: {duration!r}
-frame_rate: {1 / dt!r}
-dt: {dt!r}
-integrator: {integrator}
-gravity: [0, -{G}, 0]
-collision: {STEPPED}
-bodies:
-  - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
-     material: {{restitution: {eps}, friction: {mu}}}}}
-  - {{name: box, mass: 1.3, position: [0.1, {half_height + d!r}, -0.2],
-     orientation: {quat_of(R)}, shape: {{type: box, size: {size.tolist()}}},
-     material: {{restitution: {eps}, friction: {mu}}}}}
-""")
+    t_i, s = drop_flat(pose, eps, mu, integrator, dt, STEPPED, 4)  # 3-4 steps after
     assert np.abs(s.body_angvel[1]).max() <= 1e-9
     assert np.abs(s.body_vel[1, [0, 2]]).max() <= 1e-9
     if eps == 0.0:

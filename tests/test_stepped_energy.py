@@ -27,26 +27,13 @@ import numpy as np
 import pytest
 
 from conftest import simulate
+from test_energy_closed_box import HALF, _walls as walls
 
-HALF = 1.0  # m: half the inner size of the closed box of walls
 TOL = 1e-9
 # The suite (CI) runs symplectic-euler (the default): each integrator is another compiled
 # stepped kernel (~40 s of CPU on an empty cache); VRSIM_SLOW_TESTS=1 adds verlet.
 INTEGRATORS = (["symplectic-euler", "verlet"] if os.environ.get("VRSIM_SLOW_TESTS") == "1"
                else ["symplectic-euler"])
-
-
-def walls() -> list[str]:
-    out = []
-    for axis in range(3):
-        for sign in (1, -1):
-            normal = [0.0, 0.0, 0.0]
-            normal[axis] = float(-sign)
-            pos = [0.0, 0.0, 0.0]
-            pos[axis] = sign * HALF
-            out.append(f"  - {{name: wall{axis}{'p' if sign > 0 else 'm'}, type: static, "
-                       f"position: {pos}, shape: {{type: plane, normal: {normal}}}}}")
-    return out
 
 
 def capsule_inertia(m: float, r: float, length: float) -> np.ndarray:
