@@ -136,9 +136,43 @@ def mirror_errors(data: dict, pairs) -> tuple[float, float]:
     return worst, fastest
 
 
+# Cases that still fail, each with its measured cause (issue 15 item 2 is not finished
+# for them). Strict: a fix that makes one pass fails here until it is taken off the list.
+STEPPED_ORDER = ("stepped mode: kernels/stepped.py solves a pair's points by Gauss-Seidel "
+                 "sweeps in list order (`impact_pair`, `rest`), and a body's mirror corners "
+                 "(or its mirror body's) come in another order; the sweeps stop before "
+                 "friction converges: the first asymmetric step's impulses differ by 1e-9 "
+                 "(single 4, an edge landing) to 2e-3 N s (single 8), pair 10 in `rest`")
+KNOWN = {
+    ("pair", "located", 4): "two boxes meet vertex to vertex with mu = 0.8: each impact "
+    "multiplies the round-off asymmetry by ~100 (5e-15 at t = 0.42 s, 1e-10 at 0.47 s); "
+    "at t = 0.59 s they rest edge on edge in the mirror plane with two coincident "
+    "3-point manifolds, where the Coulomb solve is not unique and 1e-9 decides (0.05 m/s)",
+    ("pair", "stepped", 4): STEPPED_ORDER,
+    ("pair", "stepped", 7): STEPPED_ORDER,
+    ("pair", "stepped", 10): STEPPED_ORDER,
+    ("pair", "stepped", 13): STEPPED_ORDER,
+    ("single", "stepped", 4): STEPPED_ORDER,
+    ("single", "stepped", 6): STEPPED_ORDER,
+    ("single", "stepped", 8): STEPPED_ORDER,
+    ("single", "stepped", 14): STEPPED_ORDER,
+    ("single", "stepped", 2): "stepped landing with eps = 1, mu > 0 gains energy and the "
+    "run stops (issue 15 item 4, not a symmetry question)",
+    ("single", "stepped", 7): "stepped landing with eps = 1, mu > 0 gains energy and the "
+    "run stops (issue 15 item 4, not a symmetry question)",
+}
+
+
+def known(request, kind, mode, seed):
+    reason = KNOWN.get((kind, mode, seed))
+    if reason is not None:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=reason))
+
+
 @pytest.mark.parametrize("mode", ["located", "stepped"])
 @pytest.mark.parametrize("seed", SEEDS)
-def test_mirror_pair_stays_mirror_symmetric(seed, mode):
+def test_mirror_pair_stays_mirror_symmetric(seed, mode, request):
+    known(request, "pair", mode, seed)
     data, pairs = pair_scene(seed, mode)
     worst, fastest = mirror_errors(data, pairs)
     assert fastest > 0.5  # it moved
@@ -147,7 +181,8 @@ def test_mirror_pair_stays_mirror_symmetric(seed, mode):
 
 @pytest.mark.parametrize("mode", ["located", "stepped"])
 @pytest.mark.parametrize("seed", SEEDS)
-def test_self_symmetric_body_stays_in_its_plane(seed, mode):
+def test_self_symmetric_body_stays_in_its_plane(seed, mode, request):
+    known(request, "single", mode, seed)
     data, pairs = single_scene(seed, mode)
     worst, fastest = mirror_errors(data, pairs)
     assert fastest > 0.5
