@@ -58,7 +58,9 @@ UP = (0.0, 1.0, 0.0)
 LARGE_FACTOR = 8.0  # as broadphase: boxes larger than this many median sizes go to all
 GOLDEN_ITERATIONS = 48
 PARALLEL_SIN = 1e-3
-MAX_PER_PAIR = 4  # contacts one pair function can make
+MAX_PER_PAIR = 8  # contacts one pair function can make (box_box: two faces' 4)
+TIE_TOL = 1e-9  # as narrowphase.TIE_TOL
+PARALLEL_COS = 1e-9  # as narrowphase.PARALLEL_COS
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -697,9 +699,18 @@ def capsule_capsule(gf, W, ga, gb, margin, C, k):
     hi = min(max(s_a, s_b), length)
     count = 0
     if parallel and hi - lo > 1e-9 * (1.0 + length):
+        # the ends of the overlap along the bisector of the axes, and both axes' points
+        # there: the same contacts whichever capsule comes first (narrowphase)
+        w, _ = _unit(la.add(u, la.scale(1.0 if la.dot(u, u2) >= 0.0 else -1.0, u2)), UP)
+        s1, e1, s2, e2 = la.dot(a1, w), la.dot(b1, w), la.dot(a2, w), la.dot(b2, w)
+        lo = max(min(s1, e1), min(s2, e2))
+        hi = min(max(s1, e1), max(s2, e2))
         for end in (lo, hi):
-            p1 = la.add(a1, la.scale(end, u))
-            q, m, d = _spheres(p1, ra, _closest_on_segment(p1, a2, b2), rb)
+            p1 = la.add(a1, la.scale(_clip((end - s1) / (e1 - s1), 0.0, 1.0),
+                                     la.sub(b1, a1)))
+            p2 = la.add(a2, la.scale(_clip((end - s2) / (e2 - s2), 0.0, 1.0),
+                                     la.sub(b2, a2)))
+            q, m, d = _spheres(p1, ra, p2, rb)
             if d >= -margin:
                 _put(C, k + count, q, m, d)
                 count += 1
@@ -902,7 +913,11 @@ def _reduce(pts, depth, idx, m, chosen):
 def box_box(gf, W, ga, gb, margin, C, k):
     """Separating axes (3 + 3 faces, 9 edge crosses), then a face manifold (the overlap
     of the reference and incident faces, up to 4 points) or an edge contact (closest
-    points of the two edges). Face axes win unless an edge axis is 5 % shallower."""
+    points of the two edges). Face axes win unless an edge axis is 5 % shallower. A tie
+    of two axes that are not parallel (a face of A and one of B, or two edge pairs,
+    equally shallow to TIE_TOL) gives the contacts of both, not of the first body's:
+    a box meeting its mirror image corner to corner touches both face planes
+    (narrowphase.box_box)."""
     ca, cb = _pos(W, ga), _pos(W, gb)
     A, B = _rot(W, ga), _rot(W, gb)
     ha, hb = _half(gf, ga), _half(gf, gb)
@@ -929,40 +944,78 @@ def box_box(gf, W, ga, gb, margin, C, k):
         overlap[q] = ra + rb - abs(dist[q])
         if q >= 6 and length < 1e-6:  # parallel edges: no axis
             overlap[q] = math.inf
-    face = 0
-    for q in range(1, 6):
-        if overlap[q] < overlap[face]:
-            face = q
+    face_a = 0
+    for q in range(1, 3):
+        if overlap[q] < overlap[face_a]:
+            face_a = q
+    face_b = 3
+    for q in range(4, 6):
+        if overlap[q] < overlap[face_b]:
+            face_b = q
+    face = face_b if overlap[face_b] < overlap[face_a] else face_a
     edge = 6
     for q in range(7, 15):
         if overlap[q] < overlap[edge]:
             edge = q
+    edge2 = -1
+    for q in range(6, 15):
+        if q != edge and (edge2 < 0 or overlap[q] < overlap[edge2]):
+            edge2 = q
     f_ov, e_ov = overlap[face], overlap[edge]
     use_edge = e_ov < f_ov - 0.05 * abs(f_ov) - 1e-6
     best = edge if use_edge else face
     depth_sat = overlap[best]
     if not depth_sat >= -margin:
         return 0
+    tie_tol = TIE_TOL * (1.0 + max(ha[0], ha[1], ha[2]) + max(hb[0], hb[1], hb[2]))
+    if use_edge:
+        got = _box_edge(ca, cb, A, B, ha, hb, L, dist, overlap, best, C, k)
+        if overlap[edge2] - e_ov <= tie_tol:
+            got += _box_edge(ca, cb, A, B, ha, hb, L, dist, overlap, edge2, C, k + got)
+        return got
+    got = _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, best, margin, C, k)
+    other = face_b if face == face_a else face_a
+    cos = abs(L[face_a, 0] * L[face_b, 0] + L[face_a, 1] * L[face_b, 1] +
+              L[face_a, 2] * L[face_b, 2])
+    if abs(overlap[face_a] - overlap[face_b]) <= tie_tol and cos < 1.0 - PARALLEL_COS:
+        got += _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, other, margin, C, k + got)
+    return got
+
+
+@kernel
+def _box_edge(ca, cb, A, B, ha, hb, L, dist, overlap, best, C, k):
+    """The edge contact of box_box along edge axis `best`: the closest points of the
+    supporting edges of A (towards B) and of B (towards A). Returns 1."""
     sgn = 1.0 if dist[best] >= 0.0 else -1.0
     n = (L[best, 0] * sgn, L[best, 1] * sgn, L[best, 2] * sgn)  # A -> B
-    if use_edge:
-        i, j = (best - 6) // 3, (best - 6) % 3
-        pa, pb = ca, cb
-        for q in range(3):
-            sa = 1.0 if la.dot(_col(A, q), n) >= 0.0 else -1.0
-            sb = -1.0 if la.dot(_col(B, q), n) >= 0.0 else 1.0
-            if q != i:
-                pa = la.add(pa, la.scale(sa * ha[q], _col(A, q)))
-            if q != j:
-                pb = la.add(pb, la.scale(sb * hb[q], _col(B, q)))
-        da = la.scale(ha[i], _col(A, i))
-        db = la.scale(hb[j], _col(B, j))
-        s, tt = closest_segment_points(la.sub(pa, da), la.add(pa, da), la.sub(pb, db),
-                                       la.add(pb, db))
-        wa = la.add(la.sub(pa, da), la.scale(2.0 * s, da))
-        wb = la.add(la.sub(pb, db), la.scale(2.0 * tt, db))
-        _put(C, k, la.scale(0.5, la.add(wa, wb)), n, depth_sat)
-        return 1
+    depth_sat = overlap[best]
+    i, j = (best - 6) // 3, (best - 6) % 3
+    pa, pb = ca, cb
+    for q in range(3):
+        sa = 1.0 if la.dot(_col(A, q), n) >= 0.0 else -1.0
+        sb = -1.0 if la.dot(_col(B, q), n) >= 0.0 else 1.0
+        if q != i:
+            pa = la.add(pa, la.scale(sa * ha[q], _col(A, q)))
+        if q != j:
+            pb = la.add(pb, la.scale(sb * hb[q], _col(B, q)))
+    da = la.scale(ha[i], _col(A, i))
+    db = la.scale(hb[j], _col(B, j))
+    s, tt = closest_segment_points(la.sub(pa, da), la.add(pa, da), la.sub(pb, db),
+                                   la.add(pb, db))
+    wa = la.add(la.sub(pa, da), la.scale(2.0 * s, da))
+    wb = la.add(la.sub(pb, db), la.scale(2.0 * tt, db))
+    _put(C, k, la.scale(0.5, la.add(wa, wb)), n, depth_sat)
+    return 1
+
+
+@kernel
+def _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, best, margin, C, k):
+    """The face manifold of box_box with the reference face of axis `best` (0-2: on A,
+    3-5: on B): the overlap of the reference and the incident face, up to 4 points.
+    Returns how many."""
+    sgn = 1.0 if dist[best] >= 0.0 else -1.0
+    n = (L[best, 0] * sgn, L[best, 1] * sgn, L[best, 2] * sgn)  # A -> B
+    depth_sat = overlap[best]
     on_a = best < 3
     kk = best % 3
     if on_a:
@@ -1013,6 +1066,8 @@ def box_box(gf, W, ga, gb, margin, C, k):
         p = (pts[q, 0], pts[q, 1], pts[q, 2])
         _put(C, k + c, la.add(p, la.scale(0.5 * depth[q], nr)), n, depth[q])
     return nc
+
+
 
 
 # ----------------------------------------------------------------------------- dispatch

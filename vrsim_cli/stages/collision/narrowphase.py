@@ -28,6 +28,8 @@ _UP = np.array([0.0, 1.0, 0.0])
 # Box corners in a fixed order: the signs of the half extents.
 _CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
                     dtype=float)
+TIE_TOL = 1e-9  # of the boxes' size: separating axes this close are equally shallow
+PARALLEL_COS = 1e-9  # face normals closer than this (1 - |cos|) are parallel
 GOLDEN_ITERATIONS = 48  # bracket shrinks to 0.618^48 ~ 1e-10 of the capsule's length
 
 
@@ -245,10 +247,20 @@ def capsule_capsule(cm, world, ia, ib, margin):
     pairs, points, normals, depths = [np.flatnonzero(~two)], [point[~two]], [n[~two]], \
         [depth[~two]]
     if two.any():
+        # The ends of the overlap along the bisector of the two axes, and the points of
+        # both axes there: the same contacts whichever capsule comes first (measured
+        # along axis 1 and projected onto axis 2, a capsule side by side with its mirror
+        # image got one contact off the mirror plane)
+        a1, b1, a2, b2 = a1[two], b1[two], a2[two], b2[two]
+        u2 = _unit(b2 - a2)[0]
+        w = _unit(u[two] + np.where(_dot(u[two], u2) >= 0.0, 1.0, -1.0)[:, None] * u2)[0]
+        s1, e1, s2, e2 = _dot(a1, w), _dot(b1, w), _dot(a2, w), _dot(b2, w)
+        lo = np.maximum(np.minimum(s1, e1), np.minimum(s2, e2))
+        hi = np.minimum(np.maximum(s1, e1), np.maximum(s2, e2))
         for end in (lo, hi):
-            p1 = a1[two] + u[two] * end[two, None]
-            q, m, d = _spheres(p1, ra[two], _closest_on_segment(p1, a2[two], b2[two]),
-                               rb[two])
+            p1 = a1 + np.clip((end - s1) / (e1 - s1), 0.0, 1.0)[:, None] * (b1 - a1)
+            p2 = a2 + np.clip((end - s2) / (e2 - s2), 0.0, 1.0)[:, None] * (b2 - a2)
+            q, m, d = _spheres(p1, ra[two], p2, rb[two])
             pairs.append(np.flatnonzero(two))
             points.append(q)
             normals.append(m)
@@ -415,27 +427,49 @@ def box_box(cm, world, ia, ib, margin):
     A, B = world.rot[ia], world.rot[ib]  # columns: box axes in world
     ha, hb = world.half[ia], world.half[ib]
     L, dist, overlap = _sat(world, ia, ib)
-    face = np.argmin(overlap[:, :6], axis=1)
-    edge = 6 + np.argmin(overlap[:, 6:], axis=1)
     rows = np.arange(P)
+    face_a = np.argmin(overlap[:, :3], axis=1)
+    face_b = 3 + np.argmin(overlap[:, 3:6], axis=1)
+    face = np.where(overlap[rows, face_b] < overlap[rows, face_a], face_b, face_a)
+    edge_order = 6 + np.argsort(overlap[:, 6:], axis=1, kind="stable")
+    edge, edge2 = edge_order[:, 0], edge_order[:, 1]
     f_ov, e_ov = overlap[rows, face], overlap[rows, edge]
     use_edge = e_ov < f_ov - 0.05 * np.abs(f_ov) - 1e-6
     best = np.where(use_edge, edge, face)
     depth_sat = overlap[rows, best]
     hit = depth_sat >= -margin
-    n = L[rows, best] * np.where(dist[rows, best] >= 0.0, 1.0, -1.0)[:, None]  # A -> B
+    axis_sign = np.where(dist >= 0.0, 1.0, -1.0)[..., None]
+    n = L[rows, best] * axis_sign[rows, best]  # A -> B
+    # A tie between two axes that are not parallel (a face of A and a face of B, or two
+    # edge pairs, equally shallow to TIE_TOL) is not broken by the order of the bodies:
+    # both give contacts (a box meeting its mirror image corner to corner touches both
+    # face planes; the first body's face alone gave one contact off the mirror plane and
+    # an asymmetric impulse). Parallel faces (boxes stacked face to face) clip to the same
+    # polygon either way: one is enough.
+    tie_tol = TIE_TOL * (1.0 + ha.max(axis=1) + hb.max(axis=1))
+    face_tie = ~use_edge & hit & (np.abs(overlap[rows, face_a] - overlap[rows, face_b]) <=
+                                  tie_tol) & \
+        (np.abs(_dot(L[rows, face_a], L[rows, face_b])) < 1.0 - PARALLEL_COS)
+    edge_tie = use_edge & hit & (overlap[rows, edge2] - e_ov <= tie_tol)
+    other = np.where(face == face_a, face_b, face_a)
+    jobs = np.concatenate([rows, rows[face_tie]])  # pair of each face manifold
+    axis = np.concatenate([best, other[face_tie]])
+    job_n = L[jobs, axis] * axis_sign[jobs, axis]
     out = []
     # Face contacts: reference face on A (axes 0-2) or on B (axes 3-5).
     for on_a in (True, False):
-        sel = np.flatnonzero(hit & ~use_edge & ((best < 3) if on_a else (best >= 3)))
-        if not len(sel):
+        job = np.flatnonzero(hit[jobs] & ~use_edge[jobs] & ((axis < 3) if on_a else
+                                                             (axis >= 3)))
+        if not len(job):
             continue
-        k = best[sel] % 3
+        sel = jobs[job]
+        k = axis[job] % 3
         R_ref, h_ref, c_ref = (A, ha, ca) if on_a else (B, hb, cb)
         R_inc, h_inc, c_inc = (B, hb, cb) if on_a else (A, ha, ca)
         R_ref, h_ref, c_ref = R_ref[sel], h_ref[sel], c_ref[sel]
         R_inc, h_inc, c_inc = R_inc[sel], h_inc[sel], c_inc[sel]
-        nr = n[sel] if on_a else -n[sel]  # reference face normal, towards the other box
+        nj = job_n[job]
+        nr = nj if on_a else -nj  # reference face normal, towards the other box
         r = np.arange(len(sel))
         fc = c_ref + nr * h_ref[r, k][:, None]
         u, v = R_ref[r, :, (k + 1) % 3], R_ref[r, :, (k + 2) % 3]
@@ -457,19 +491,20 @@ def box_box(cm, world, ia, ib, margin):
                 # the incident corner nearest to the reference plane, at the axis' gap.
                 corner = int(np.argmax(np.where(np.arange(24) < 4, depth[q], -np.inf)))
                 mid = pts[q, corner] + nr[q] * (0.5 * depth[q, corner])
-                out.append((sel[q:q + 1], mid[None], n[sel[q]][None],
-                            depth_sat[sel[q]:sel[q] + 1]))
+                out.append((sel[q:q + 1], mid[None], nj[q][None],
+                            overlap[sel[q], axis[job[q]]][None]))
                 continue
             chosen = idx[_reduce(pts[q, idx], depth[q, idx])]
             mid = pts[q, chosen] + nr[q] * (0.5 * depth[q, chosen])[:, None]
-            out.append((np.full(len(chosen), sel[q]), mid, np.repeat(n[sel[q]][None],
+            out.append((np.full(len(chosen), sel[q]), mid, np.repeat(nj[q][None],
                         len(chosen), axis=0), depth[q, chosen]))
     # Edge contacts: the supporting edges of A (towards B) and of B (towards A).
-    sel = np.flatnonzero(hit & use_edge)
+    sel = np.concatenate([rows[hit & use_edge], rows[edge_tie]])
+    e_axis = np.concatenate([best[hit & use_edge], edge2[edge_tie]])
     if len(sel):
-        i, j = (best[sel] - 6) // 3, (best[sel] - 6) % 3
+        i, j = (e_axis - 6) // 3, (e_axis - 6) % 3
         r = np.arange(len(sel))
-        nn = n[sel]
+        nn = L[sel, e_axis] * axis_sign[sel, e_axis]
         pa = ca[sel].copy()
         pb = cb[sel].copy()
         for k in range(3):
@@ -482,7 +517,7 @@ def box_box(cm, world, ia, ib, margin):
         s, tt = closest_segment_points(pa - da, pa + da, pb - db, pb + db)
         wa = pa - da + (2 * s)[:, None] * da
         wb = pb - db + (2 * tt)[:, None] * db
-        out.append((sel, 0.5 * (wa + wb), nn, depth_sat[sel]))
+        out.append((sel, 0.5 * (wa + wb), nn, overlap[sel, e_axis]))
     if not out:
         return no_pair_contacts()
     pair, point, normal, depth = (np.concatenate(x) for x in zip(*out))

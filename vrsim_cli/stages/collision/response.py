@@ -457,8 +457,10 @@ def resting(model, start, state, last=None, c=None):
         kink = np.full((model.n_body, 4), np.nan)
         impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm,
                                              (last.body_vel, last.body_angvel), kink)
-        dpos += _tangential_drift(model, last, state, bodies, c, rows[
-            np.abs(impulse[rows]).max(axis=1) > 0.0], kink)
+        # held: an impulse that changes the contact's velocity by more than round-off
+        # (a contact with 2e-15 N s and its mirror image with 0 were treated apart)
+        held = np.abs(impulse[rows]).max(axis=1) > solver.APPROACH_EPS * cs.inv_k[:, 0]
+        dpos += _tangential_drift(model, last, state, bodies, c, rows[held], kink)
         dp, dth = solver.correct_positions(bodies, cs, rm.slop, rm.position_iterations)
         dpos += dp
         dtheta += dth

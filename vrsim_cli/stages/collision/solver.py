@@ -242,6 +242,20 @@ def _apply_all(bodies: Bodies, c: ContactSet, lam, dirs) -> None:
     np.add.at(bodies.angvel, c.a, -np.einsum("kj,kjd->kd", lam, c.rot_a[:, dirs]))
 
 
+TIE = 1e-9  # relative: rows whose violations agree this closely are equally violated
+
+
+def _worst(candidates, value) -> np.ndarray:
+    """(m,) bool: the candidate rows with the least `value` (the most violated), together
+    with every candidate within TIE of it (relative, and round-off of the values' scale).
+    Active sets change all of them at once: taking the first of equal rows (argmin) made
+    the solution depend on the order of the contacts, and where it is not unique (two
+    normals at one point, friction) a contact and its mirror image got different ones."""
+    least = float(np.min(np.where(candidates, value, np.inf)))
+    scale = float(np.abs(np.where(candidates, value, 0.0)).max())
+    return candidates & (value <= least + TIE * abs(least) + 1e-15 * scale)
+
+
 def _lcp(W, v, target) -> np.ndarray:
     """lam >= 0 with w = v + W lam >= target and lam (w - target) = 0, by active sets:
     solve the active rows exactly (minimum-norm, so equal points get equal impulses),
@@ -256,13 +270,13 @@ def _lcp(W, v, target) -> np.ndarray:
             lam[active] = matmul(_pinv(W[sub][None])[0], (target - v)[active])
         pulls = active & (lam < 0.0)
         if pulls.any():
-            active[np.argmin(np.where(pulls, lam, np.inf))] = False
+            active[_worst(pulls, lam)] = False
             continue
         w = v + matmul(W, lam)
         short = ~active & (w < target - 1e-12 * (1.0 + np.abs(target)))
         if not short.any():
             break
-        active[np.argmin(np.where(short, w - target, np.inf))] = True
+        active[short] = True  # all at once (see `_patch`)
     return np.maximum(lam, 0.0)
 
 
@@ -358,14 +372,46 @@ def solve_resting(bodies: Bodies, c: ContactSet, dt: float, iterations: int, war
     k = len(c)
     if not k:
         return np.zeros((0, 3))
+    movable = bodies.movable
+    target = np.maximum(-c.depth, 0.0) / dt  # m/s allowed approach of a gap
+    if k <= EXACT_CONTACTS:
+        lam = _exact_resting(bodies, c, target)
+    else:
+        lam = _iterate_resting(bodies, c, target, iterations, warm, movable)
+    loaded = lam[:, 0] > 0.0
+    # Sticking: the friction impulse that would stop the sliding now fits in the cone of
+    # the final normal impulse (the last clamp used an earlier, smaller lam_n).
+    needed = lam[:, 1:] - velocity_along(bodies, c, slice(1, 3)) * c.inv_k[:, 1:]
+    stick = loaded & (np.linalg.norm(needed, axis=1) <= c.friction * lam[:, 0])
+    _shock_velocities(bodies, _shock_plan(bodies, c, movable), target, loaded, stick, lam,
+                      start, kink)
+    return np.einsum("kj,kjd->kd", lam, c.dirs)
+
+
+EXACT_CONTACTS = 16  # resting contact sets up to this size are solved exactly, at once
+
+
+def _exact_resting(bodies: Bodies, c: ContactSet, target) -> np.ndarray:
+    """The resting impulses (k, 3) along (n, t1, t2) of every contact at once: normal
+    complementarity (v_n >= -target) and Coulomb friction per point, by `_patch`'s
+    active sets with the minimum-norm solution over the Delassus matrix of all the
+    contacts (bodies may repeat). Unlike sequential impulses, the result does not depend
+    on the order of the contacts: two contacts of a pair that are each other's mirror
+    image get mirror impulses (the sweeps gave the first one more). Applied to bodies."""
+    lam, _ = _patch(_delassus(c, [0, 1, 2]), velocity_along(bodies, c), target, c.friction)
+    _apply_all(bodies, c, lam, [0, 1, 2])
+    return lam
+
+
+def _iterate_resting(bodies: Bodies, c: ContactSet, target, iterations, warm, movable):
+    """Sequential impulses over colours (see `solve_resting`); returns lam (k, 3)."""
+    k = len(c)
     lam = np.zeros((k, 3)) if warm is None else np.einsum("kjd,kd->kj", c.dirs, warm)
     lam[:, 0] = np.maximum(lam[:, 0], 0.0)
     over = np.linalg.norm(lam[:, 1:], axis=1) > c.friction * lam[:, 0]
     lam[over, 1:] = 0.0
-    movable = bodies.movable
     groups = colours(c.a, c.b, movable)
     subs = [c.take(g) for g in groups]
-    target = np.maximum(-c.depth, 0.0) / dt  # m/s allowed approach of a gap
     if warm is not None:
         for g, sub in zip(groups, subs):
             apply_along(bodies, sub, lam[g])
@@ -378,14 +424,7 @@ def solve_resting(bodies: Bodies, c: ContactSet, dt: float, iterations: int, war
             new = np.maximum(lam[g, 0] - (vn + target[g]) * sub.inv_k[:, 0], 0.0)
             apply_along(bodies, sub, (new - lam[g, 0])[:, None], slice(0, 1))
             lam[g, 0] = new
-    loaded = lam[:, 0] > 0.0
-    # Sticking: the friction impulse that would stop the sliding now fits in the cone of
-    # the final normal impulse (the last clamp used an earlier, smaller lam_n).
-    needed = lam[:, 1:] - velocity_along(bodies, c, slice(1, 3)) * c.inv_k[:, 1:]
-    stick = loaded & (np.linalg.norm(needed, axis=1) <= c.friction * lam[:, 0])
-    _shock_velocities(bodies, _shock_plan(bodies, c, movable), target, loaded, stick, lam,
-                      start, kink)
-    return np.einsum("kj,kjd->kd", lam, c.dirs)
+    return lam
 
 
 def _shock_plan(bodies: Bodies, c: ContactSet, movable):
@@ -403,10 +442,22 @@ def _shock_plan(bodies: Bodies, c: ContactSet, movable):
         if block.any():
             rows = idx[block]
             plan.append(("block", _block(bodies, c, rows, lb[rows] > la[rows])))
-        for g in colours(c.a[idx[~block]], c.b[idx[~block]], movable):
-            rows = idx[~block][g]
+        same = idx[~block]
+        if 0 < len(same) <= EXACT_CONTACTS:  # all at once, in no order (`_cluster`)
+            plan.append(("cluster", (same, c.take(same))))
+            continue
+        for g in colours(c.a[same], c.b[same], movable):
+            rows = same[g]
             plan.append(("pairs", (rows, c.take(rows))))
     return plan
+
+
+def _cluster(sub: ContactSet, v, target) -> np.ndarray:
+    """Normal impulses (k,) >= 0 of contacts between bodies of one level (they may share
+    bodies) that make every normal velocity (or displacement) v + W lam >= target, solved
+    together (`_lcp`, minimum norm): no contact goes first, so a symmetric cluster stays
+    symmetric."""
+    return _lcp(_delassus(sub, [0]), v, target)
 
 
 def _block(bodies: Bodies, c: ContactSet, rows, upper_is_b):
@@ -490,6 +541,11 @@ def _shock_velocities(bodies: Bodies, plan, target, loaded, stick, lam, start=No
         rows, sub = data[0], data[1]
         if kind == "block":
             _patch_blocks(bodies, data, target[rows], lam, start, kink)
+            continue
+        if kind == "cluster":
+            extra = _cluster(sub, velocity_along(bodies, sub, 0), -target[rows])
+            _apply_all(bodies, sub, extra[:, None], [0])
+            lam[rows, 0] += extra
             continue
         want = -velocity_along(bodies, sub)
         want[:, 0] -= target[rows]
@@ -599,13 +655,15 @@ def _patch(A, pre, target, mu, slip0=None):
             continue
         pulls = active & (lam[:, 0] < -tol_l)
         if pulls.any():
-            active[int(np.argmin(np.where(pulls, lam[:, 0], np.inf)))] = False
+            active[_worst(pulls, lam[:, 0])] = False
             slide[~active] = False
             continue
         short = ~active & (v[:, 0] < -target - tol_v)
         if short.any():
-            i = int(np.argmin(np.where(short, v[:, 0] + target, np.inf)))
-            active[i], slide[i] = True, False
+            # all that still approach join at once (the minimum-norm solve then shares
+            # between contacts that overlap, as two normals at one corner do; adding the
+            # worst first gave all to one of them, chosen by round-off)
+            active[short], slide[short] = True, False
             continue
         moved = False
         for i in np.flatnonzero(active & slide & (mu > 0.0)).tolist():
@@ -698,6 +756,12 @@ def correct_positions(bodies: Bodies, c: ContactSet, slop: float, iterations: in
                 u, dv, dw = _block_solve(data, np.stack([excess, 0 * excess, 0 * excess], 1))
                 dpos[u] += dv
                 dtheta[u] += dw
+            elif kind == "cluster":
+                d = _cluster(sub, moved, sub.depth - slop)[:, None]
+                np.add.at(dpos, sub.b, d * sub.lin_b[:, 0])
+                np.add.at(dtheta, sub.b, d * sub.rot_b[:, 0])
+                np.add.at(dpos, sub.a, -d * sub.lin_a[:, 0])
+                np.add.at(dtheta, sub.a, -d * sub.rot_a[:, 0])
             else:
                 d = (excess * sub.inv_k[:, 0])[:, None]
                 dpos[sub.b] += d * sub.lin_b[:, 0]
