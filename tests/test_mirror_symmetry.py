@@ -156,10 +156,6 @@ KNOWN = {
     ("single", "stepped", 6): STEPPED_ORDER,
     ("single", "stepped", 8): STEPPED_ORDER,
     ("single", "stepped", 14): STEPPED_ORDER,
-    ("single", "stepped", 2): "stepped landing with eps = 1, mu > 0 gains energy and the "
-    "run stops (issue 15 item 4, not a symmetry question)",
-    ("single", "stepped", 7): "stepped landing with eps = 1, mu > 0 gains energy and the "
-    "run stops (issue 15 item 4, not a symmetry question)",
 }
 
 
