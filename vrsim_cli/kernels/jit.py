@@ -246,7 +246,9 @@ def _stable_cell(value):
         return value
     if isinstance(value, tuple):
         return tuple(_stable_cell(v) for v in value)
-    raise TypeError(f"a kernel closure over {type(value).__name__} cannot be cached stably")
+    from numba.core.serialize import dumps  # numba's own key for anything else
+
+    return dumps(value).hex()
 
 
 @contextlib.contextmanager
