@@ -220,8 +220,10 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
 
     Between two points where Python has work to do (an output sample, a frame with
     sensors, rendering, pacing or callbacks) the dynamics runs as one compiled call of
-    many steps (`dynamics.run`, like `mj_step(nstep)`). Stages still written in Python
-    per step (the scene graph of animated scenes, collision) make the loop step by step.
+    many steps (`dynamics.run`, like `mj_step(nstep)`; with stepped impacts
+    `collision.stepped.run`). Stages still written in Python per step (the scene graph of
+    animated scenes, collision with located impacts or with Python's mesh and hull pairs)
+    make the loop step by step.
 
     `resume`: `state` is where an earlier run of this model stopped (at a frame, through
     `should_stop`); the set-up of a run's first state (kinematic poses at t, attaching the
