@@ -259,6 +259,19 @@ def run(model: Model, state: State, count: int, dynamics):
     _, kd, ks = _kernels()
     tb = tables(model, dynamics)
     sc = _run_scratch(model, tb)
+    if not sc.get("step_typed"):
+        # the step kernel compiled (or loaded) through a call from Python before the run
+        # kernel types it: a step kernel first compiled inside the run kernel's typing and
+        # cached failed to return its arrays when a later process called it from Python
+        # (numba: "NRT_adapt_ndarray_to_python: descr is NULL"); this step is thrown away
+        from vrsim_cli.errors import SimulationError
+
+        try:
+            step(model, state, state.replace(step=state.step + 1,
+                                              t=(state.step + 1) * model.dt), dynamics)
+        except SimulationError:
+            pass  # the run below reports it
+        sc["step_typed"] = True
     bS, bRS, base, base_set, status = (sc[k] for k in ("bS", "bRS", "base", "base_set",
                                                        "status"))
     _rows(model, state, bS[0], bRS[0])
