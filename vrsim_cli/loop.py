@@ -220,8 +220,10 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
 
     Between two points where Python has work to do (an output sample, a frame with
     sensors, rendering, pacing or callbacks) the dynamics runs as one compiled call of
-    many steps (`dynamics.run`, like `mj_step(nstep)`). Stages still written in Python
-    per step (the scene graph of animated scenes, collision) make the loop step by step.
+    many steps (`dynamics.run`, like `mj_step(nstep)`; with stepped impacts
+    `collision.stepped.run`). Stages still written in Python per step (the scene graph of
+    animated scenes, collision with located impacts or with Python's mesh and hull pairs)
+    make the loop step by step.
 
     `resume`: `state` is where an earlier run of this model stopped (at a frame, through
     `should_stop`); the set-up of a run's first state (kinematic poses at t, attaching the
@@ -252,12 +254,15 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
             detect, respond = None, response.step
     stepped = _stepped(model)
     respond_with = dynamics.advance  # response integrates cut steps with it
+    batched = False
     if stepped:  # many bodies: one compiled call makes the whole step, forces included,
         from vrsim_cli.stages.collision import stepped as stepped_stage  # with the
         respond, respond_with = stepped_stage.step, dynamics  # dynamics' packed model
+        # and when no step needs Python, one compiled call makes many steps (`chunk`)
+        batched = stepped_stage.batched(model, dynamics)
     # keyframes, drives or parents move bodies: the scene graph stage runs
     animate = model.animation is not None and model.animation.has_motion
-    per_step = animate or detect is not None or respond is not None
+    per_step = animate or detect is not None or (respond is not None and not batched)
     callbacks = on_frame is not None or should_stop is not None
     # sensors are read for the observer only (`sensors.read`): without one, no frame work
     sensing = model.inputs is not None and model.observer is not None
@@ -298,6 +303,8 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
 
     def chunk(s: State, count: int) -> State:
         """count steps of the dynamics in one compiled call, checked."""
+        if batched:
+            return stepped_chunk(s, count)
         t0 = clock()
         good, failure = dynamics.run(model, s, count)
         profile["dynamics"] += clock() - t0
@@ -306,6 +313,25 @@ def run(model: Model, state: State, writer=None, *, realtime: bool = False,
             raise_failure(model, failure)
         check_orientations(model, good)  # the kernel checked positions and velocities
         return good
+
+    def stepped_chunk(s: State, count: int) -> State:
+        """count stepped steps in compiled calls: the states `one_step` gives, and its
+        checks' errors (the kernel stops at a state that may fail them, checked here)."""
+        t0 = clock()
+        end = s.step + count
+        try:
+            while s.step < end:
+                good, bad, error = stepped_stage.run(model, s, end - s.step, dynamics)
+                s = result.state = good
+                if error is not None:
+                    raise error
+                if bad is None:
+                    break
+                check_state(model, bad)  # raises what one_step's check would
+                s = result.state = bad  # the compiled test's margin: a good state after all
+        finally:
+            profile["collision"] += clock() - t0
+        return s
 
     def one_step(s: State) -> State:
         t0 = clock()

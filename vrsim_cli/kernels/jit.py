@@ -233,6 +233,40 @@ class _SafeFunctionCache(caching.FunctionCache):
         super().__init__(py_func)
         self._cache_file.__class__ = _SafeIndexDataCacheFile  # same state, safe save
 
+    def _index_key(self, sig, codegen):
+        """numba keys a closure by the pickle of its cells, and a kernel's pickle carries
+        a random per-process id: a closure that calls another kernel (the stepped run
+        calls the stepped step) would miss the cache in every run. Such cells are keyed
+        by what the kernel is instead: its name, bytecode and own cells (its source file
+        is this one's or numba's timestamp check covers it like any global callee)."""
+        cells = self._py_func.__closure__ or ()
+        if not any(isinstance(c.cell_contents, _Dispatcher) for c in cells):
+            return super()._index_key(sig, codegen)
+        import hashlib
+
+        stable = repr(tuple(_stable_cell(c.cell_contents) for c in cells)).encode()
+        code = self._py_func.__code__.co_code
+        return (sig, codegen.magic_tuple(), (hashlib.sha256(code).hexdigest(),
+                                             hashlib.sha256(stable).hexdigest()))
+
+
+from numba.core.dispatcher import Dispatcher as _Dispatcher  # noqa: E402
+
+
+def _stable_cell(value):
+    """A closure cell's value as a text that is the same in every process (_index_key)."""
+    if isinstance(value, _Dispatcher):
+        f = value.py_func
+        return ("kernel", f.__module__, f.__qualname__, f.__code__.co_code.hex(),
+                tuple(_stable_cell(c.cell_contents) for c in f.__closure__ or ()))
+    if isinstance(value, (bool, int, float, str, type(None))):
+        return value
+    if isinstance(value, tuple):
+        return tuple(_stable_cell(v) for v in value)
+    from numba.core.serialize import dumps  # numba's own key for anything else
+
+    return dumps(value).hex()
+
 
 @contextlib.contextmanager
 def _folder_lock(folder: str):

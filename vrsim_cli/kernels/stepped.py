@@ -1555,3 +1555,112 @@ def _make_entry(integ: int, kinds: tuple):
         return OUT, m_out, h_prop
 
     return step_kernel
+
+
+# ----------------------------------------------------------------------------- many steps
+#
+# The loop's call between two output samples (as kernels.dynamics.entry's run): several
+# stepped steps in one compiled call, each step's contacts and impulses handed to the
+# next as its warm start, the loop's per-step checks made after every step.
+
+RUN_OK, RUN_FLAGGED, RUN_UNDERFLOW = 0, 1, 2  # run status codes
+UNIT_FLAG = 0.5e-9  # |q|^2 - 1 that stops a run for the loop's own check (it fails at 1e-9)
+_RUNS: dict = {}
+
+
+def run_entry(integ: int, kinds: tuple):
+    """The many-steps kernel of the stepped step `entry(integ, kinds)`."""
+    key = (integ, tuple(bool(x) for x in kinds))
+    if key not in _RUNS:
+        _RUNS[key] = _make_run(entry(*key))
+    return _RUNS[key]
+
+
+def _make_run(step_kernel):
+    @kernel
+    def run_kernel(mf, gf, rb, rp, prm, step0, count, n_steps, steps_per_frame, t_first,
+                   h_prop, bS, bRS, prev_a, prev_b, prev_toi, prev_imp, XC, KIN, KIN_RS,
+                   wb, wr, wm, kS, base, base_set, set_base, guard, status):
+        """Up to `count` stepped steps from step0 on the double buffers bS (2, n, 13) and
+        bRS (2, r, 12), starting in buffer 0 at t_first (the later steps at (step0 + s)
+        dt), from the contacts prev_* (as `entry`'s) and dopri5's proposal h_prop. XC,
+        KIN, KIN_RS as `entry`'s (no rows: scenes with Python's contacts or animation
+        call `entry` per step).
+
+        After every step, as the loop's `check_state` and the stage's energy baseline: a
+        state with a position, velocity, R or L not finite or past the loop's bounds, a
+        quaternion off unit by more than UNIT_FLAG, or (`guard`, at frame ends) energy
+        past `kernels.dynamics.energy_check`'s bound stops the run as RUN_FLAGGED for the
+        loop to check (and raise) in Python; `set_base`: the energy baseline `base` (n,)
+        J is replaced (base_set[0] = 1) when the force windows close within the step.
+
+        status (out, int64 (5,)): [code, steps done, buffer of the last good state,
+        body or component (RUN_UNDERFLOW), buffer of the flagged state]. Returns (OUT, m,
+        h) of the last good step and of the flagged one: the contacts (`outputs`) and
+        dopri5's proposal."""
+        n = bS.shape[1]
+        dt = prm[PR_DT]
+        guard_from = kd.param(mf, kd.P_GUARD_FROM)
+        per_body = np.empty(n)
+        pa, pb, ptoi, pimp = prev_a, prev_b, prev_toi, prev_imp
+        out_good = np.empty((0, O_SIZE))
+        out_last = out_good
+        m_good, m_last = 0, 0
+        h_good, h_last = h_prop, h_prop
+        status[0] = RUN_OK
+        status[1] = 0
+        status[2] = 0
+        status[3] = -1
+        status[4] = 1
+        cur = 0
+        for s in range(count):
+            st = step0 + s
+            t = t_first if s == 0 else st * dt
+            nxt = 1 - cur
+            S, RS, S1, RS1 = bS[cur], bRS[cur], bS[nxt], bRS[nxt]
+            status[4] = nxt
+            prm[PR_STEP] = st
+            prm[PR_T] = t
+            prm[PR_H_PROP] = h_prop
+            OUT, m, h_new = step_kernel(mf, gf, rb, rp, prm, S, RS, pa, pb, ptoi, pimp, XC,
+                                        KIN, KIN_RS, S1, RS1, wb, wr, wm, kS)
+            if h_new < 0.0:
+                status[0] = RUN_UNDERFLOW
+                status[3] = int(-1.0 - h_new)
+                break
+            after = st + 1
+            t_after = after * dt
+            if set_base and 0.0 < guard_from and t < guard_from <= t_after:
+                kd.body_energy(mf, S1, RS1, base)
+                base_set[0] = 1
+            flagged = kd.translation_ok(S1) >= 0 or kd.rotation_ok(mf, RS1) >= 0
+            for b in range(n):
+                qq = 0.0
+                for c in range(kd.S_QUAT, kd.S_QUAT + 4):
+                    qq += S1[b, c] * S1[b, c]
+                if not abs(qq - 1.0) <= UNIT_FLAG:
+                    flagged = True
+            if not flagged and guard and t_after >= guard_from and (
+                    after % steps_per_frame == 0 or after == n_steps):
+                flagged = kd.energy_check(mf, S1, RS1, base, per_body, t_after - guard_from,
+                                          dt)[0] >= 0
+            if flagged:
+                status[0] = RUN_FLAGGED
+                out_last, m_last, h_last = OUT, m, h_new
+                break
+            out_good, m_good, h_good = OUT, m, h_new
+            h_prop = h_new
+            pa, pb = np.empty(m, np.int64), np.empty(m, np.int64)
+            ptoi, pimp = np.empty(m), np.empty((m, 3))
+            for i in range(m):
+                pa[i] = int(OUT[i, O_A])
+                pb[i] = int(OUT[i, O_B])
+                ptoi[i] = OUT[i, O_TOI]
+                for c in range(3):
+                    pimp[i, c] = OUT[i, O_IMP + c]
+            cur = nxt
+            status[1] = s + 1
+            status[2] = cur
+        return out_good, m_good, h_good, out_last, m_last, h_last
+
+    return run_kernel

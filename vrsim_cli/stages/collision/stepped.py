@@ -108,7 +108,7 @@ def tables(model: Model, dynamics) -> dict:
     r = 0 if model.rigid is None else model.rigid.n_rot
     animated = model.animation is not None and model.animation.has_motion
     found = dict(gf=gf, rb=rb, rp=rp, prm=prm, python=np.flatnonzero(python),
-                 kernel=ks.entry(integ, kinds), mf=dynamics.packed(model),
+                 kernel=ks.entry(integ, kinds), kinds=kinds, mf=dynamics.packed(model),
                  work=kd.make_work(n, r, integ), S=np.zeros((n, kd.S_SIZE)),
                  RS=np.zeros((r, kd.RS_SIZE)), S1=np.zeros((n, kd.S_SIZE)),
                  RS1=np.zeros((r, kd.RS_SIZE)), animated=animated,
@@ -231,11 +231,113 @@ def step(model: Model, before: State, after: State, dynamics) -> State:
     return dynamics._guard_baseline(model, before, new)  # the dynamics stage's rule
 
 
+def batched(model: Model, dynamics) -> bool:
+    """Whether the loop may make many steps in one call (`run`): nothing of the step
+    needs Python (no pairs of Python's detection, no scene graph moving bodies)."""
+    tb = tables(model, dynamics)
+    return not tb["animated"] and not len(tb["python"])
+
+
+def _run_scratch(model: Model, tb: dict) -> dict:
+    found = tb.get("run")
+    if found is None:
+        n, r = model.n_body, tb["RS"].shape[0]
+        found = tb["run"] = dict(bS=np.zeros((2, n, tb["S"].shape[1])),
+                                 bRS=np.zeros((2, r, tb["RS"].shape[1])), base=np.zeros(n),
+                                 base_set=np.zeros(1, np.int64),
+                                 status=np.zeros(5, np.int64))
+    return found
+
+
+def run(model: Model, state: State, count: int, dynamics):
+    """Up to `count` stepped steps from `state` in one compiled call (`batched` scenes):
+    the states and contacts of `count` calls of `step`, bit for bit, with the loop's
+    per-step checks made in the kernel. Returns (the last good state, the state that
+    failed a check or None, a SimulationError or None): a failed state is for the loop's
+    `check_state` to name (the compiled test stops a little early on unit quaternions,
+    so a failed state may yet pass it, and the run goes on from there)."""
+    _, kd, ks = _kernels()
+    tb = tables(model, dynamics)
+    sc = _run_scratch(model, tb)
+    if not sc.get("step_typed"):
+        # the step kernel compiled (or loaded) through a call from Python before the run
+        # kernel types it: a step kernel first compiled inside the run kernel's typing and
+        # cached failed to return its arrays when a later process called it from Python
+        # (numba: "NRT_adapt_ndarray_to_python: descr is NULL"); this step is thrown away
+        from vrsim_cli.errors import SimulationError
+
+        try:
+            step(model, state, state.replace(step=state.step + 1,
+                                              t=(state.step + 1) * model.dt), dynamics)
+        except SimulationError:
+            pass  # the run below reports it
+        sc["step_typed"] = True
+    bS, bRS, base, base_set, status = (sc[k] for k in ("bS", "bRS", "base", "base_set",
+                                                       "status"))
+    _rows(model, state, bS[0], bRS[0])
+    rigid = model.rigid
+    if state.rot_energy0 is not None:
+        base[:] = state.rot_energy0
+        base_set[0] = 1
+    else:
+        base[:] = 0.0 if rigid is None or rigid.energy0_body is None else rigid.energy0_body
+        base_set[0] = 0
+    c, imp = state.contacts, state.contact_impulse
+    if c is None or imp is None or not len(c):
+        prev = tb["no_contacts"]
+    else:
+        prev = (np.ascontiguousarray(c.body_a, np.int64), np.ascontiguousarray(c.body_b,
+                np.int64), np.ascontiguousarray(c.toi, float), np.ascontiguousarray(imp, float))
+    mf = tb["mf"]
+    guard = bool(mf[int(mf[kd.H_PARAM]) + kd.P_ENERGY_GUARD] != 0.0)
+    set_base = rigid is not None and bool(rigid.energy_guard)
+    wb, wr, wm, kS = tb["work"]
+    kernel = ks.run_entry(kd.INTEGRATOR_CODES[model.integrator], tb["kinds"])
+    got = kernel(mf, tb["gf"], tb["rb"], tb["rp"], tb["prm"], state.step, count,
+                 model.n_steps, model.steps_per_frame, state.t, state.ode_step, bS, bRS,
+                 *prev, tb["no_rows"], tb["no_kin"], tb["no_kin_rs"], wb, wr, wm, kS, base,
+                 base_set, set_base, guard, status)
+    code, done, cur, index, failed = (int(v) for v in status)
+    energy0 = base.copy() if base_set[0] else None
+
+    def at(buffer: int, steps: int, out, m, h) -> State:
+        k = state.step + steps
+        out = out[:m]
+        rot = {}
+        if bRS.shape[1]:
+            rot = dict(rot_matrix=bRS[buffer, :, 0:9].reshape(-1, 3, 3).copy(),
+                       rot_angmom=bRS[buffer, :, 9:12].copy())
+        S1 = bS[buffer]
+        contacts = Contacts(out[:, ks.O_A].astype(np.int64), out[:, ks.O_B].astype(np.int64),
+                            out[:, ks.O_P:ks.O_P + 3].copy(), out[:, ks.O_N:ks.O_N + 3].copy(),
+                            out[:, ks.O_D].copy(), out[:, ks.O_TOI].copy())
+        return state.replace(step=k, t=k * model.dt, body_pos=S1[:, 0:3].copy(),
+                             body_vel=S1[:, 3:6].copy(), body_quat=S1[:, 6:10].copy(),
+                             body_angvel=S1[:, 10:13].copy(), ode_step=h, contacts=contacts,
+                             contact_impulse=out[:, ks.O_IMP:ks.O_IMP + 3].copy(),
+                             rot_energy0=energy0, **rot)
+
+    good = at(cur, done, *got[0:3]) if done else state
+    if code == ks.RUN_OK:
+        return good, None, None
+    if code == ks.RUN_UNDERFLOW:
+        from vrsim_cli.errors import SimulationError
+
+        return good, None, SimulationError(
+            "the adaptive step size fell below round-off (the motion is not smooth or not "
+            "finite); try another integrator", body=dynamics.body_of_component(model, index),
+            t=float(wm[kd.WM_FAIL_T]))
+    return good, at(failed, done + 1, *got[3:6]), None
+
+
 def prepare(model: Model, dynamics) -> None:
     """Pack the tables and load (on the first run after an install: compile) the kernel,
     with a step of the initial state that is thrown away."""
     from vrsim_cli.model.state import make_state
 
     state = make_state(model)
+    if batched(model, dynamics):  # the loop's kernel: many steps per call
+        run(model, state, 0, dynamics)
+        return
     after = state.replace(step=state.step + 1, t=model.dt)
     step(model, state, after, dynamics)
