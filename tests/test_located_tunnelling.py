@@ -251,21 +251,21 @@ WALLS, PLATES = (14, 6), (4, 7)  # (scenes, cases per scene)
 SCENES = [(kind, eps, plates, k) for kind in ("sphere", "box", "capsule")
           for eps in (0.0, 0.5, 1.0) for plates, (count, _) in ((False, WALLS), (True, PLATES))
           for k in range(count)]
-# Known failures (2 of the 1008 cases), strict: the day they pass, the mark must go.
-KNOWN = {("capsule", 0.0, False, 13): "a capsule's first impact is found 0.1 mm late",
-         ("capsule", 0.0, True, 1): "a capsule at 661 m/s, eps 0, tunnels through a plate"}
+# Known failures (1 of the 1008 cases), strict: the day they pass, the mark must go.
+KNOWN = {("capsule", 0.0, True, 1): "a capsule at 661 m/s, eps 0, tunnels through a plate"}
 # The suite (CI) runs every third scene, the known failures among them (~1/3 of the
 # ~2.5 min of CPU the whole set takes); VRSIM_SLOW_TESTS=1 runs all 1008 cases, as for
 # the closing notes.
+# Scenes that once failed always run: a capsule's impact found 0.1 mm late (the root of
+# the least gap stopped unconverged, test_the_time_of_impact_root_converges_...).
+ONCE_FAILED = {("capsule", 0.0, False, 13)}
 FULL = os.environ.get("VRSIM_SLOW_TESTS") == "1"
-RUN = [p for i, p in enumerate(SCENES) if FULL or i % 3 == 0 or p in KNOWN]
-# passed in one fresh-clone run (generic CPU build, other BLAS kernels), failed here
-FLAKY = {("capsule", 0.0, False, 13)}
+RUN = [p for i, p in enumerate(SCENES) if FULL or i % 3 == 0 or p in KNOWN or p in ONCE_FAILED]
 
 
 def _marks(p):
     if p in KNOWN:
-        return [pytest.mark.xfail(strict=p not in FLAKY, reason=KNOWN[p])]
+        return [pytest.mark.xfail(strict=True, reason=KNOWN[p])]
     return []
 
 
@@ -287,3 +287,34 @@ def test_fast_bodies_do_not_tunnel_and_obey_the_impact_law(kind, eps, plates, k)
 
 def test_the_cases_number_at_least_a_thousand():
     assert sum((PLATES if plates else WALLS)[1] for _, _, plates, _ in SCENES) == 1008
+
+
+def test_the_time_of_impact_root_converges_on_a_kinked_least_gap():
+    """`response._root` on G = min(resting gap, bullet gap): a pair resting 1e-13-1e-9 m
+    apart (with round-off wobble) is the least gap until a bullet's gap, closing at
+    10-1000 m/s, crosses it; the root is the bullet's touch, known in closed form. Plain
+    Illinois regula falsi crawled here (each secant step ~ floor / speed) and stopped
+    after its 200 steps up to 2e-7 s late (the '0.1 mm late' capsule of this file). The
+    bound is the root's own tolerance, 1e-13 of the step, plus the time the bullet takes
+    to close the floor (below it G is the floor, not the bullet's gap)."""
+    from vrsim_cli.stages.collision.response import ROOT_TOLERANCE, _root
+
+    rng = np.random.default_rng(15)
+    late = []
+    for _ in range(300):
+        h = float(rng.uniform(1e-4, 1e-2))
+        floor = float(np.exp(rng.uniform(np.log(1e-13), np.log(1e-9))))
+        speed = float(np.exp(rng.uniform(np.log(10.0), np.log(1000.0))))
+        touch = float(rng.uniform(0.01, 0.99)) * h
+        phase = float(rng.uniform(0.0, 6.0))
+
+        def gap(t, floor=floor, speed=speed, touch=touch, phase=phase):
+            wobble = floor * (1.0 + 1e-3 * np.sin(1e9 * t + phase))
+            return min(wobble, speed * (touch - t))
+
+        hi = _root(gap, 0.0, gap(0.0), h, gap(h), h)
+        if not (gap(hi) <= 0.0 and
+                touch - 1.01 * floor / speed - ROOT_TOLERANCE * h <= hi <=
+                touch + ROOT_TOLERANCE * h):
+            late.append((h, floor, speed, touch, hi - touch))
+    assert not late, f"{len(late)} of 300 roots off: {late[:5]}"
