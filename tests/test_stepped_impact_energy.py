@@ -81,17 +81,15 @@ def energy(case, state) -> float:
 
 SCENES = [(kind, eps, mu, k) for kind in ("box", "capsule", "sphere")
           for eps in (0.0, 0.5, 1.0) for mu in (0.0, 0.3, 0.8) for k in range(3 if FULL else 1)]
-# Known failures, strict (the day they pass, the mark must go). On main 15 of these 27
-# scenes failed; the capped friction of `impact_pair` fixed the friction ones (eps 1 with
-# mu > 0 among them). These still gain, most without friction, so the cause is elsewhere
-# (suspected, not confirmed: impacts solved with turning locked, whose linear impulse can
-# exceed what an elastic impact gives a spinning body; or the position pass raising m g z).
-KNOWN = {("box", 0.0, 0.0, 0), ("box", 1.0, 0.0, 0), ("capsule", 0.0, 0.0, 0),
-         ("capsule", 0.0, 0.3, 0), ("capsule", 0.5, 0.8, 0), ("capsule", 1.0, 0.0, 0),
-         ("capsule", 1.0, 0.3, 0)}
-PARAMS = [pytest.param(*p, marks=[pytest.mark.xfail(strict=True, reason="gains energy: "
-                                                    "cause not found (module)")]
-                       if p in KNOWN else []) for p in SCENES]
+# Known failures, strict (the day they pass, the mark must go): on main 15 of the 27
+# scenes failed (gains up to 107 J: friction with Newton's law per point, and impacts
+# with turning locked). These two still gain a little (3e-7 to 7e-4 J) while the capsule
+# lies on the plane after landing, eps 0; the cause was not found (not checked whether it
+# is the impact phase, the resting solve or the position pass).
+KNOWN = {("capsule", 0.0, 0.0, 0), ("capsule", 0.0, 0.3, 0)}
+PARAMS = [pytest.param(*p, marks=[pytest.mark.xfail(
+    strict=True, reason="a resting capsule, eps 0, gains up to 7e-4 J: cause not found")]
+    if p in KNOWN else []) for p in SCENES]
 
 
 @pytest.mark.parametrize("kind, eps, mu, k", PARAMS)

@@ -607,6 +607,10 @@ def _locked_impact(K, c0, m, lam, tl, U, Wv):
         return
     for q in range(m):
         tl[q, 0] = tl[q, 1] = tl[q, 2] = 0.0
+    before = np.zeros((m, 3))  # linear relative velocities (n, t1, t2) less the kick
+    for q in range(m):
+        for j in range(3):
+            before[q, j] = _rel_lin(K, c0 + q, j, U) - K[c0 + q, K_KICK + j]
     for _ in range(IMPACT_ITERATIONS):
         change, size = 0.0, 0.0
         for q in range(m):
@@ -634,6 +638,29 @@ def _locked_impact(K, c0, m, lam, tl, U, Wv):
             size = max(size, new)
         if change <= IMPACT_CONVERGED * size:
             break
+    # The targets are the points' velocities, spin included, but the impulse only
+    # changes the translation: a point carried into the face by the spin asked for more
+    # than an elastic impact of the centres gives (measured: +27 J on a 1 kg box spinning
+    # onto a plane, eps = 1, mu = 0). If the impulse adds kinetic energy (lam.J v + lam.W
+    # lam / 2 over the linear rows, v at the step's start: the kick is taken as linear,
+    # exact without torques), it is shortened along itself to its most dissipative point,
+    # beta = -lam.J v / lam.W lam, where the change is -(lam.J v)^2 / (2 lam.W lam).
+    work, curv = 0.0, 0.0
+    for q in range(m):
+        if lam[3 * q] < 0.0:
+            continue
+        for j in range(3):
+            now = _rel_lin(K, c0 + q, j, U) - K[c0 + q, K_KICK + j]
+            work += tl[q, j] * before[q, j]
+            curv += tl[q, j] * (now - before[q, j])
+    if work + 0.5 * curv > 0.0:
+        beta = min(max(-work / curv, 0.0), 1.0) if curv > 0.0 else 0.0
+        for q in range(m):
+            if lam[3 * q] < 0.0:
+                continue
+            for j in range(3):
+                _linear(K, c0 + q, j, (beta - 1.0) * tl[q, j], U)
+                tl[q, j] *= beta
     for q in range(m):
         if lam[3 * q] < 0.0:
             continue
@@ -641,6 +668,15 @@ def _locked_impact(K, c0, m, lam, tl, U, Wv):
         for j in range(3):
             K[i, K_LK + j] += tl[q, j]
         K[i, K_PASSES] += 1.0
+
+
+@kernel(inline="always")
+def _rel_lin(K, i, j, U):
+    """Relative linear velocity d.(u_B - u_A) of contact i along its direction j."""
+    a, b = int(K[i, K_A]), int(K[i, K_B])
+    d = K_N + 3 * j
+    return K[i, d] * (U[b, 0] - U[a, 0]) + K[i, d + 1] * (U[b, 1] - U[a, 1]) + \
+        K[i, d + 2] * (U[b, 2] - U[a, 2])
 
 
 @kernel(inline="always")
