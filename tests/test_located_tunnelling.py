@@ -330,6 +330,7 @@ def test_the_time_of_impact_root_converges_on_a_kinked_least_gap():
     assert not late, f"{len(late)} of 300 roots off: {late[:5]}"
 
 
+
 def kinetic_energy(kind, size, m, state, body) -> float:
     """J: 1/2 m v.v + 1/2 w.(R I R^T) w of one body, with the test's own inertia."""
     R = _rot(state.body_quat[body])

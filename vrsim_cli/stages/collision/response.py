@@ -408,24 +408,33 @@ def _root(gap, lo, g_lo, hi, g_hi, h):
     """The root of gap in [lo, hi] (gap(lo) > 0 >= gap(hi)) to ROOT_TOLERANCE * h, by the
     Illinois variant of regula falsi; returns its upper end (overlapping or touching).
 
-    Safeguarded by bisection: a step is the midpoint whenever the bracket is not half as
-    wide as three steps before, so it halves at least every three steps and the root is
-    always found to ROOT_TOLERANCE (2^-66 of the bracket in ROOT_ITERATIONS). Plain
-    Illinois can crawl: G, the least gap of several pairs, is kinked where a pair resting
-    1e-11 m apart (the minimum while positive) meets a bullet's gap closing at 500 m/s
-    (the minimum once negative); each secant step then moved lo by ~1e-11 / 500 s and 200
-    steps ended 2e-7 s past the root (0.1 mm inside the wall), on a path that the
-    round-off of the resting gap decides (so the result depended on the CPU's BLAS)."""
+    Safeguarded from the left: once the bracket is not half as wide as three steps
+    before, the steps go from lo, each twice the last (from ROOT_TOLERANCE * h, at most
+    half the bracket), until the bracket is within four of them, then bisect: at most
+    ~45 + 45 steps after the switch, so the root is always found to ROOT_TOLERANCE.
+    Plain Illinois crawled where G, the least gap of several pairs, is kinked: a pair
+    resting 1e-11 m apart (the minimum while positive) meets a bullet's gap closing at
+    500 m/s (the minimum once negative); each secant step moved lo by ~1e-11 / 500 s and
+    200 steps ended 2e-7 s past the root (0.1 mm inside the wall), on a path that the
+    round-off of the resting gap decided (so the result depended on the CPU's BLAS). The
+    steps grow from lo, not from the bracket's middle: G on the bracket [0, h] of a step
+    may have several roots (a bullet through a plate and out, then another pair), and a
+    bisection step jumped past the first (the bullet went through)."""
     side = 0
     widths = [hi - lo]
+    safe, advance = False, 0.5 * ROOT_TOLERANCE * h
     for _ in range(ROOT_ITERATIONS):
         if hi - lo <= ROOT_TOLERANCE * h:  # (not at g = 0: a distance may be 0 for
             break                             # any overlap, so 0 is not yet the touch)
         m = hi - g_hi * (hi - lo) / (g_hi - g_lo)
-        if not lo < m < hi or (len(widths) >= 3 and hi - lo > 0.5 * widths[-3]):
-            m = 0.5 * (lo + hi)
+        safe = safe or not lo < m < hi or (len(widths) >= 3 and hi - lo > 0.5 * widths[-3])
+        if safe:  # steps doubling from lo until the bracket is local, then bisection
+            m = lo + (0.5 * (hi - lo) if hi - lo <= 4.0 * advance else
+                      min(2.0 * advance, 0.5 * (hi - lo)))
         g = gap(m)
         if g > 0.0:
+            if safe:
+                advance = m - lo
             lo, g_lo = m, g
             if side == 1:
                 g_hi *= 0.5  # Illinois: halve the stale end so the bracket shrinks on both
