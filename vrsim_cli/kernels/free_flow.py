@@ -241,15 +241,9 @@ def free_rotation(moments, Rp, L, h, gl_x, gl_w, gl_start, ratios):
         return (nan, nan, nan, nan, nan, nan, nan, nan, nan)
     if G == 0.0:
         return Rp
-    I1, I2, I3 = moments[0], moments[1], moments[2]
+    I1, I3 = moments[0], moments[2]
     zeros = (m[0] == 0.0) + (m[1] == 0.0) + (m[2] == 0.0)
-    # Steady too: a symmetric top turning about an axis in its plane of equal moments
-    # (every such axis is principal). The Jacobi path took it for the separatrix
-    # (k^2 = 0/0 -> 1) and turned the body by ~0.6 rad in no time: seen on a square
-    # plate hit frictionlessly on its face (no spin about its normal, m3 exactly 0).
-    flat = ((I2 - I1) <= 1e-12 * I2 and m[2] * m[2] == 0.0) or \
-        ((I3 - I2) <= 1e-12 * I3 and m[0] * m[0] == 0.0)
-    if zeros >= 2 or (I3 - I1) <= 1e-12 * I3 or flat:  # steady: along an axis, or spherical
+    if zeros >= 2 or (I3 - I1) <= 1e-12 * I3:  # steady: along an axis, or spherical
         omega = (m[0] / moments[0], m[1] / moments[1], m[2] / moments[2])
         return la.matmul(Rp, la.exp_so3(la.scale(h, omega)))
     return la.matmul(Rp, jacobi_step(moments, m, G, h, gl_x, gl_w, gl_start, ratios))

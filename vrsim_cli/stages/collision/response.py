@@ -191,23 +191,6 @@ def apply_impacts(model, state, c: Contacts):
     return write_back(model, state, bodies, stopped), impulse
 
 
-def _lift(model, state, c: Contacts, pairs: set):
-    """`state` with the penetration of the contacts `c` of `pairs` (impulse response)
-    taken out by position correction (`solver.correct_positions`; it turns a body's
-    angular momentum with it, so kinetic energy is unchanged): a pair that sank `tol`
-    into a face while turning about its contact point (`_first_impact`) starts from the
-    surface again, so the next sinking is again `tol`, not `tol` more."""
-    rows = np.flatnonzero((_modes(model, c) == IMPULSE) & np.array(
-        [(a, b) in pairs for a, b in zip(c.body_a.tolist(), c.body_b.tolist())], bool))
-    if not len(rows):
-        return state
-    rm = model.response
-    bodies = bodies_of(model, state)
-    dp, dth = solver.correct_positions(bodies, _contact_set(model, bodies, c, rows),
-                                       rm.slop, rm.position_iterations)
-    return write_back(model, state, bodies, None, dp, dth)
-
-
 def _pair_geoms(model, a, b):
     cm = model.collision
     body_geom = np.full(model.n_body, -1, np.int64)
@@ -244,8 +227,8 @@ def _signed_gaps(cm, world, ia, ib, separation=False):
 
 
 def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=None):
-    """(tau, sunk): the time tau in [0, h] of the first impact of the motion from s (free
-    flight to `end`) and the touching pairs that hit then by sinking in (below), or None. Candidates: pairs penetrating at the end that did not touch at s; touching
+    """Time tau in [0, h] of the first impact of the motion from s (free flight to `end`),
+    or None. Candidates: pairs penetrating at the end that did not touch at s; touching
     pairs approaching faster than rest_speed (impact now or soon); touching pairs leaving
     faster than rest_speed (a ball that just bounced may land again within the step), and
     touching pairs that are apart at the end (a box that turned about the corner it just
@@ -327,12 +310,11 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
     d0 = gaps(0.0)
     back = np.array([p in leaving or p in turning for p in pairs])
     if (d0[~back] <= 0.0).any():
-        return 0.0, set()
+        return 0.0
     if not swept_toi and (d0 > 0.0).all():
         g_hi = float(gaps(h).min())
         if g_hi <= 0.0:
-            return _root(lambda t: float(gaps(t).min()), 0.0, float(d0.min()), h, g_hi,
-                         h), set()
+            return _root(lambda t: float(gaps(t).min()), 0.0, float(d0.min()), h, g_hi, h)
     toi = np.array([swept_toi.get(p, 0.0) for p in pairs])
     mu = approach_bound(cm, s, end, ia, ib)
     sep0 = separations(0.0)
@@ -344,23 +326,14 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
     noise = ARM_ROUNDOFF * (1.0 + float(np.abs(s.body_pos[np.concatenate([
         [p[0] for p in pairs], [p[1] for p in pairs]])]).max()))
     arm = np.where(back, np.where(turns, np.maximum(sep0, 0.0) + noise, 0.0), -np.inf)
-    # A touching pair (turning or leaving) whose gap does not open but closes (a body
-    # spinning about the point it just hit plastically, its contact point curving into
-    # the face at |w|^2 r: a capsule at 240 rad/s sank 6.6 cm into a 1 cm plate within
-    # the step, and the end's position correction pushed it out through the far side)
-    # hits again once it is `tol` deeper than at the start: an impact there (a
-    # micro-collision, Mirtich 1996), after which step() takes the pair's penetration out.
-    sink = np.where(back, np.minimum(sep0, 0.0) - cm.tolerance, -np.inf)
-    bracket = _march(separations, sep0, arm, toi, h, mu, cm.tolerance, sink)
+    bracket = _march(separations, sep0, arm, toi, h, mu, cm.tolerance)
     if bracket is None:
         return None
-    sel, lo, g_lo, hi, g_hi, level = bracket
-    tau = _root(lambda t: float((separations(t, sel) - level).min()), lo, g_lo, hi, g_hi,
-                h)
-    return tau, {pairs[i] for i in sel[level < 0.0].tolist()}
+    sel, lo, g_lo, hi, g_hi = bracket
+    return _root(lambda t: float(separations(t, sel).min()), lo, g_lo, hi, g_hi, h)
 
 
-def _march(gaps, d0, arm, toi, h, mu, tol, sink=None):
+def _march(gaps, d0, arm, toi, h, mu, tol):
     """Conservative advancement (Mirtich 1996) along the integrator's path to the first
     overlap of a candidate pair. From t, where every pair taking part is apart (gaps
     d_i > 0), pair i cannot touch before t + max(d_i, tol) / mu_i (mu_i:
@@ -369,72 +342,44 @@ def _march(gaps, d0, arm, toi, h, mu, tol, sink=None):
     detection's time of impact (found on the step's chord; 0 when it found none); the
     march steps to the earliest of these. A pair takes part once its gap exceeds arm_i
     (-inf: from the start; 0: a pair touching at 0 and leaving, once apart; its gap at 0:
-    a touching pair that neither approached nor left); until then, one with a finite
-    sink_i (< its gap at 0) takes part with level sink_i: it hits when its gap falls to
-    sink_i (a touching pair sinking in). Returns (pairs taking part, lo, G(lo) > 0, hi,
-    G(hi) <= 0, their levels), G the least of their gaps minus their levels (0 for armed
-    pairs), or None (no overlap within h)."""
-    sink = np.full(len(d0), -np.inf) if sink is None else sink
+    a touching pair that neither approached nor left). Returns (pairs taking part, lo,
+    G(lo) > 0, hi, G(hi) <= 0), G their least gap, or None (no overlap within h)."""
     t, d = 0.0, d0
     armed = d0 > arm
     for _ in range(MARCH_STEPS):
-        level = np.where(armed, 0.0, sink)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ahead = np.where(np.isfinite(level), d - level, 0.0)
-            step = np.where(mu > 0.0, np.maximum(ahead, tol) / mu, np.inf)
+        with np.errstate(divide="ignore"):
+            step = np.where(mu > 0.0, np.maximum(np.where(armed, d, 0.0), tol) / mu, np.inf)
         t_next = min(float(np.maximum(t + step, toi).min()), h)
         d_next = gaps(t_next)
-        if (d_next <= level).any():
-            sel = np.flatnonzero(np.isfinite(level))
-            return (sel, t, float((d - level)[sel].min()), t_next,
-                    float((d_next - level)[sel].min()), level[sel])
+        if (armed & (d_next <= 0.0)).any():
+            sel = np.flatnonzero(armed)
+            return (sel, t, float(d[sel].min()), t_next, float(d_next[sel].min()))
         armed |= d_next > arm
         t, d = t_next, d_next
         if t >= h:
             return None
     # very slow progress (a pair skimming past within the tolerance): sample the rest
-    level = np.where(armed, 0.0, sink)
-    sel = np.flatnonzero(np.isfinite(level))
+    sel = np.flatnonzero(armed)
     for j in range(1, LEAVE_SAMPLES + 1):
         t_next = t + (h - t) * j / LEAVE_SAMPLES
         d_next = gaps(t_next, sel)
-        if (d_next <= level[sel]).any():
-            return (sel, t, float((d - level)[sel].min()), t_next,
-                    float((d_next - level[sel]).min()), level[sel])
+        if (d_next <= 0.0).any():
+            return (sel, t, float(d[sel].min()), t_next, float(d_next.min()))
     return None
 
 
 def _root(gap, lo, g_lo, hi, g_hi, h):
     """The root of gap in [lo, hi] (gap(lo) > 0 >= gap(hi)) to ROOT_TOLERANCE * h, by the
-    Illinois variant of regula falsi; returns its upper end (overlapping or touching).
-
-    Safeguarded from the left: once the bracket is not half as wide as three steps
-    before, the steps go from lo, each twice the last (from ROOT_TOLERANCE * h, at most
-    half the bracket), until the bracket is within four of them, then bisect: at most
-    ~45 + 45 steps after the switch, so the root is always found to ROOT_TOLERANCE.
-    Plain Illinois crawled where G, the least gap of several pairs, is kinked: a pair
-    resting 1e-11 m apart (the minimum while positive) meets a bullet's gap closing at
-    500 m/s (the minimum once negative); each secant step moved lo by ~1e-11 / 500 s and
-    200 steps ended 2e-7 s past the root (0.1 mm inside the wall), on a path that the
-    round-off of the resting gap decided (so the result depended on the CPU's BLAS). The
-    steps grow from lo, not from the bracket's middle: G on the bracket [0, h] of a step
-    may have several roots (a bullet through a plate and out, then another pair), and a
-    bisection step jumped past the first (the bullet went through)."""
+    Illinois variant of regula falsi; returns its upper end (overlapping or touching)."""
     side = 0
-    widths = [hi - lo]
-    safe, advance = False, 0.5 * ROOT_TOLERANCE * h
     for _ in range(ROOT_ITERATIONS):
         if hi - lo <= ROOT_TOLERANCE * h:  # (not at g = 0: a distance may be 0 for
             break                             # any overlap, so 0 is not yet the touch)
         m = hi - g_hi * (hi - lo) / (g_hi - g_lo)
-        safe = safe or not lo < m < hi or (len(widths) >= 3 and hi - lo > 0.5 * widths[-3])
-        if safe:  # steps doubling from lo until the bracket is local, then bisection
-            m = lo + (0.5 * (hi - lo) if hi - lo <= 4.0 * advance else
-                      min(2.0 * advance, 0.5 * (hi - lo)))
+        if not lo < m < hi:
+            m = 0.5 * (lo + hi)
         g = gap(m)
         if g > 0.0:
-            if safe:
-                advance = m - lo
             lo, g_lo = m, g
             if side == 1:
                 g_hi *= 0.5  # Illinois: halve the stale end so the bracket shrinks on both
@@ -444,7 +389,6 @@ def _root(gap, lo, g_lo, hi, g_hi, h):
             if side == -1:
                 g_lo *= 0.5
             side = -1
-        widths.append(hi - lo)
     return hi
 
 
@@ -632,15 +576,12 @@ def step(model, before, after, advance):
         h = t_end - s.t
         if h <= 0.0:
             break
-        found = _first_impact(model, s, end, h, touching, advance, c0, c_end)
-        if found is None:
+        tau = _first_impact(model, s, end, h, touching, advance, c0, c_end)
+        if tau is None:
             break
-        tau, sunk = found
         at = s if tau == 0.0 else advance(model, s, tau)
         c = detect(model, at)
         at, imp = apply_impacts(model, at, c)
-        if sunk:
-            at = _lift(model, at, c, sunk)
         event_contacts.append(Contacts(c.body_a, c.body_b, c.point, c.normal, c.depth,
                                        np.full(len(c), at.t - before.t)))
         event_impulses.append(imp)
