@@ -1278,7 +1278,7 @@ def find_stops(C, k, dt, rb, rp, prm, n, inv_m, U, stopped):
 #
 # One compiled entry per integrator and set of shape pairs, made on first use (as
 # kernels.dynamics.entry): the integrator and the pair kinds the scene can have are
-# constants of the closure, so numba compiles, caches and loads only what a scene uses.
+# constants of the closure (the stage asks for every pair kind: one entry per integrator).
 
 PAIR_KINDS = ("sphere-sphere", "plane-sphere", "box-sphere", "capsule-sphere",
               "cylinder-sphere", "plane-box", "plane-cylinder", "plane-capsule",
