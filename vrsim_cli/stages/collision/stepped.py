@@ -21,16 +21,11 @@ from __future__ import annotations
 import numpy as np
 
 from vrsim_cli.maths.products import norm
-from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
+from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, SPHERE
 from vrsim_cli.model.model import BODY_DYNAMIC, BODY_STATIC, Model
 from vrsim_cli.model.response import DEFAULT_FRICTION, DEFAULT_RESTITUTION
 from vrsim_cli.model.state import State
 from vrsim_cli.stages.collision.contacts import Contacts
-
-# which closed forms a pair kind needs, as kernels.stepped.PAIR_KINDS
-_KINDS = ((SPHERE, SPHERE), (PLANE, SPHERE), (BOX, SPHERE), (CAPSULE, SPHERE),
-          (CYLINDER, SPHERE), (PLANE, BOX), (PLANE, CYLINDER), (PLANE, CAPSULE),
-          (CAPSULE, CAPSULE), (BOX, CAPSULE), (BOX, BOX))
 
 
 def _kernels():
@@ -77,7 +72,7 @@ def tables(model: Model, dynamics) -> dict:
     # after scene (and the suite ~20 times on an empty cache); the pair functions a
     # scene cannot reach cost ~10 s of CPU once. Results are the same bits: a kind
     # only gates narrow-phase calls that the scene's geometry types never reach.
-    kinds = (True,) * len(_KINDS)
+    kinds = (True,) * len(ks.PAIR_KINDS)
     rb = np.zeros((n, ks.RB_SIZE))
     rb[:, ks.RB_MODE] = rm.body_mode
     rb[:, ks.RB_EPS] = rm.body_restitution
