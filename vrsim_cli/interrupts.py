@@ -106,5 +106,11 @@ def held():
             _handle(signum, None)
 
 
+def pending() -> int | None:
+    """The signal that arrived in a `held` block (or in deferred mode), if any: for code
+    that waits there and can stop early (a helper process it can kill)."""
+    return _pending if _pending is not None else received
+
+
 def name(signum: int) -> str:
     return signal.Signals(signum).name

@@ -191,12 +191,131 @@ def prepare(model: Model, say: Callable[..., None] | None = None) -> None:
     if _stepped(model):  # the stepped stage integrates the bodies itself
         from vrsim_cli.stages.collision import stepped
 
+        if not _compile_apart(model.integrator):
+            return  # a signal came: the caller's `held` block acts on it
         stepped.prepare(model, dynamics)
     else:
         dynamics.prepare(model)
     seconds = jit.compile_report() - before
     if seconds > 0.0 and say is not None:
         say(f"vrsim: compiled in {seconds:.1f} s (kept for the next runs)", err=True)
+
+
+# A stepped scene's first compile is made by a helper process. The stepped kernels are
+# one entry per integrator whatever the scene (kernels/stepped.py), and numba keeps most
+# of what a first compile of them builds (~0.4 GB: types, IR and LLVM modules of ~150
+# kernels) until the process ends: compiled in the run's own process, it added to the
+# memory of the scene (the largest particle scenes validation accepts peaked at 1.1-1.3
+# GB). The helper compiles the entry on a small scene of the same integrator into the
+# disk cache and exits, before this scene's state and contacts exist; the run then loads
+# it (the entry's argument types do not depend on the scene).
+_COMPILE_SCENE = """vrsim: 1
+duration: 0.03
+frame_rate: 100
+dt: 0.01
+integrator: {integrator}
+collision: {{impacts: stepped}}
+bodies:
+  - {{name: floor, type: static, shape: {{type: plane, normal: [0, 0, 1]}}}}
+  - {{name: box, mass: 1, position: [0, 0, 0.2], shape: {{type: box, size: [0.2, 0.3, 0.4]}}}}
+  - {{name: ball, mass: 1, position: [0.5, 0, 0.1], shape: {{type: sphere, radius: 0.1}}}}
+"""
+
+
+def _compile_marker(integrator: str):
+    """The file that says the stepped entry of `integrator` is in the disk cache for this
+    CPU and Python; None when there is no cache folder or the JIT is off."""
+    from vrsim_cli.kernels import jit
+
+    folder = jit.cache_dir()
+    if folder is None or jit.JIT_DISABLED:
+        return None
+    return folder / f"stepped-{integrator}-{jit.host_key()}.compiled"
+
+
+def _compile_apart(integrator: str) -> bool:
+    """Compile the stepped entry of `integrator` in a helper process, unless the cache has
+    it. False when a signal came meanwhile (`interrupts.pending`: the helper is killed and
+    the caller's `held` block acts on the signal). If the helper fails, the run compiles
+    for itself, as it would without it."""
+    import os
+    import subprocess
+    import sys
+
+    from vrsim_cli import interrupts
+    from vrsim_cli.kernels import jit
+
+    marker = _compile_marker(integrator)
+    if marker is None or marker.exists() or os.environ.get("VRSIM_COMPILE_APART") == "0":
+        return True
+    jit.announce_compile()
+    # the helper's jit must pick the same src-<digest> folder: it gets the base folder
+    env = dict(os.environ, VRSIM_CACHE_DIR=str(marker.parent.parent))
+    env.pop("NUMBA_CACHE_DIR", None)
+    started = time.perf_counter()
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from vrsim_cli.loop import compile_main; "
+         "sys.exit(compile_main(sys.argv[1]))", integrator],
+        env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL, start_new_session=True)  # a terminal's ^C is ours
+    try:
+        while True:
+            try:
+                proc.wait(timeout=0.05)
+                break
+            except subprocess.TimeoutExpired:
+                if interrupts.pending() is not None:
+                    return False
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    jit.compiled_apart(time.perf_counter() - started)
+    return True
+
+
+def compile_main(integrator: str) -> int:
+    """The helper process of `_compile_apart`: run the small scene, then write the marker
+    (atomically). Exit 0 when the entry is compiled and cached."""
+    import gc
+    import os
+
+    gc.disable()  # as `vrsim` starts: jit then compiles with its collector thresholds
+    parent = os.getppid()
+
+    def orphaned():  # a run killed by SIGKILL cannot kill its helper: it stops itself
+        while os.getppid() == parent:
+            time.sleep(0.2)
+        os._exit(1)
+
+    import threading
+
+    threading.Thread(target=orphaned, daemon=True).start()
+
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.scene.spec import parse_scene
+    from vrsim_cli.stages.collision import stepped
+
+    model = compile_model(parse_scene(_COMPILE_SCENE.format(integrator=integrator)))
+    if not (_stepped(model) and stepped.batched(model, dynamics)):
+        return 1
+    stepped.prepare(model, dynamics)  # the run kernel, and the step kernel it calls
+    # and what a scene that steps one by one (Python's pairs, a scene graph) calls from
+    # Python: the step kernel again, and the energy guard from the second step on
+    from vrsim_cli.model.state import make_state
+
+    state = make_state(model)
+    for _ in range(3):
+        state = stepped.step(model, state, state.replace(
+            step=state.step + 1, t=(state.step + 1) * model.dt), dynamics)
+        check_state(model, state)
+    marker = _compile_marker(integrator)
+    if marker is None:
+        return 1
+    partial = marker.with_name(f".{marker.name}.{os.getpid()}")
+    partial.write_text("compiled\n")
+    os.replace(partial, marker)
+    return 0
 
 
 def _stepped(model: Model) -> bool:

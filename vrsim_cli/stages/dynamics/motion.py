@@ -328,8 +328,9 @@ def energy_check(model: Model, state: State, baseline: np.ndarray):
     kd = _kernels()
     S, RS = _rows(model, state)
     tau = state.t - (model.rigid.energy_guard_from if model.rigid is not None else 0.0)
-    bad, gain, bound = kd.energy_check(packed(model), S, RS,
-                                       np.ascontiguousarray(baseline, dtype=float),
+    # a copy: the model's baseline is read-only, a state's is not, and numba compiles
+    # one variant per kind (a first stepped compile made elsewhere covers one: loop.py)
+    bad, gain, bound = kd.energy_check(packed(model), S, RS, np.array(baseline, dtype=float),
                                        np.zeros(model.n_body), tau, model.dt)
     return int(bad), float(gain), float(bound)
 
