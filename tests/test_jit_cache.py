@@ -82,3 +82,23 @@ def test_concurrent_saves_of_two_variants_keep_each_variants_code(tmp_path):
     values, compiled = proc.stdout.strip().rsplit(" ", 1)
     assert values == "[1.0, 2.0]"
     assert float(compiled) == 0.0, "both variants should have come from the cache"
+
+
+@pytest.mark.parametrize("variable", ["XDG_CACHE_HOME", "NUMBA_CACHE_DIR", "VRSIM_CACHE_DIR"])
+def test_processes_a_run_starts_use_its_cache_folder(tmp_path, variable):
+    """A process that vrsim starts (sweep workers, the compile helper, a test's `vrsim`)
+    finds the kernels where its parent keeps them. jit points numba at the folder through
+    NUMBA_CACHE_DIR; a child given only that took it for the user's base folder and
+    nested another src-<digest> inside, compiling everything again there."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("XDG_CACHE_HOME", "NUMBA_CACHE_DIR", "VRSIM_CACHE_DIR")}
+    env[variable] = str(tmp_path / "base")
+    child = "from vrsim_cli.kernels import jit; print(jit.cache_dir())"
+    parent = ("import subprocess, sys\nfrom vrsim_cli.kernels import jit\n"
+              "print(jit.cache_dir(), flush=True)\n"
+              f"subprocess.run([sys.executable, '-c', {child!r}], check=True)\n")
+    out = subprocess.run([sys.executable, "-c", parent], env=env, capture_output=True,
+                         text=True, check=True).stdout.split()
+    expected = (tmp_path / "base" / "vrsim" / "numba" if variable == "XDG_CACHE_HOME"
+                else tmp_path / "base")
+    assert out == [str(expected / f"src-{jit._source_digest()}")] * 2

@@ -69,10 +69,15 @@ def _configure() -> None:
     """Point numba's cache at our folder before numba is imported."""
     if "dir" in _CACHE:
         return
-    folder = _default_dir() / f"src-{_source_digest()}"
+    base = _default_dir()
+    folder = base / f"src-{_source_digest()}"
     if _writable(folder):
         _CACHE["dir"], _CACHE["note"] = folder, None
         os.environ["NUMBA_CACHE_DIR"] = str(folder)
+        # and the base for processes this one starts (sweep workers, tests, the compile
+        # helper): given only NUMBA_CACHE_DIR, their jit nested another src-<digest>
+        # inside it and compiled everything again there
+        os.environ["VRSIM_CACHE_DIR"] = str(base)
     else:
         _CACHE["dir"] = None
         _CACHE["note"] = (f"the kernel cache folder {folder} is not writable: kernels are "
