@@ -150,14 +150,29 @@ def _warm_scenario(path: Path) -> None:
     run(model, make_state(model), None)
 
 
+def _warm_stepped(name: str) -> None:
+    """The stepped entry of integrator `name`, compiled as `vrsim run` does it (a helper
+    process, which leaves the marker that later runs look for)."""
+    from vrsim_cli.loop import _compile_apart
+
+    _compile_apart(name)
+
+
+# the integrators the stepped tests use (each entry is ~60 s of CPU once: compiled here
+# once per session instead of by several workers and their subprocesses at once)
+STEPPED_INTEGRATORS = ("symplectic-euler", "verlet", "rk4")
+
+
 def warm_up_units() -> list:
     """(name, callable) of the kernels every session compiles up front."""
     from functools import partial
 
     from vrsim_cli.kernels.dynamics import INTEGRATOR_CODES
 
-    return [(f"integrator-{name}", partial(_warm_integrator, name))
-            for name in INTEGRATOR_CODES] + \
+    return [(f"stepped-{name}", partial(_warm_stepped, name))
+            for name in STEPPED_INTEGRATORS] + \
+        [(f"integrator-{name}", partial(_warm_integrator, name))
+         for name in INTEGRATOR_CODES] + \
         [(f"scenario-{path.stem}", partial(_warm_scenario, path))
          for path in sorted(SCENARIOS.glob("*.yaml"))]
 
