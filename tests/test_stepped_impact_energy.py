@@ -83,12 +83,21 @@ SCENES = [(kind, eps, mu, k) for kind in ("box", "capsule", "sphere")
           for eps in (0.0, 0.5, 1.0) for mu in (0.0, 0.3, 0.8) for k in range(3 if FULL else 1)]
 # Known failures, strict (the day they pass, the mark must go): on main 15 of the 27
 # scenes failed (gains up to 107 J: friction with Newton's law per point, and impacts
-# with turning locked). These two still gain a little (3e-7 to 7e-4 J) while the capsule
-# lies on the plane after landing, eps 0; the cause was not found (not checked whether it
-# is the impact phase, the resting solve or the position pass).
+# with turning locked). These two still gain a little (3e-7 to 7e-4 J) after landing,
+# eps 0. Traced (round 6), not fixed: the worst, body 2 of the mu 0.3 scene, spins at
+# ~30 rad/s on one end cap and nutates (its axis's vertical component 0.33-0.99); its cap
+# stays 0.2-2.5 mm below the plane for 20 steps; the two gaining steps (+7.4e-4 J at
+# t = 0.58 and 0.59 s) are the two where that depth shrinks (2.55 -> 2.44 -> 2.25 mm),
+# i.e. where the body is moved out of a penetration built up over earlier steps. A
+# likely cause (not confirmed by a fix): the solve predicts a contact's gap to first
+# order in the step's turn, and at 0.3 rad per step with the cap ~0.2 m from the centre
+# of mass the second-order sinking (|w|^2 r dt^2 / 2) is millimetres per step, which
+# the position pass takes out over later steps. The bound of this test stays.
 KNOWN = {("capsule", 0.0, 0.0, 0), ("capsule", 0.0, 0.3, 0)}
 PARAMS = [pytest.param(*p, marks=[pytest.mark.xfail(
-    strict=True, reason="a resting capsule, eps 0, gains up to 7e-4 J: cause not found")]
+    strict=True, reason="a capsule spinning on its end cap stays up to 2.5 mm deep (its "
+    "gap likely predicted to first order in a 0.3 rad turn per step); the steps that "
+    "move it out add up to 7e-4 J")]
     if p in KNOWN else []) for p in SCENES]
 
 
