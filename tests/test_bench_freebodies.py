@@ -191,6 +191,11 @@ def test_quick_run_without_peers_gives_vrsim_rows_with_correct_figures(quick_alo
     assert floor.sanity["exit_code"] == 0 and 0 < floor.wall_s
     # scenarios/projectile.yaml is rk4 under constant gravity: exact to round-off
     assert startup.sanity["position_error_m"] < 1e-9
+    # the warm runs used this process's cache, not a copy nested in it (which they once
+    # compiled from scratch: the warm-up run then paid a first compile every bench)
+    from vrsim_cli.kernels import jit
+
+    assert not list(jit.cache_dir().glob("src-*"))
 
 
 @pytest.mark.skipif(not bench_peers.available("mujoco"), reason="MuJoCo not installed "

@@ -386,12 +386,16 @@ def startup_rows(quick: bool) -> list:
     if scene is None:
         return []
     key = "quick" if quick else "full"
-    warm = jit.cache_dir()
+    # this process's cache: jit exports its base folder (VRSIM_CACHE_DIR), which the runs
+    # inherit (given jit.cache_dir() itself, a run nested another src-<digest> folder
+    # in it and compiled everything again there)
+    jit.cache_dir()
+    warm = None
     rows = []
     with tempfile.TemporaryDirectory(prefix="vrsim-bench-") as tmp:
         out = Path(tmp) / "x.csv"
-        timed_run(scene, out, str(warm) if warm else None)  # warm-up: fills the cache
-        runs = [timed_run(scene, out, str(warm) if warm else None)
+        timed_run(scene, out, warm)  # warm-up: fills the cache
+        runs = [timed_run(scene, out, warm)
                 for _ in range(STARTUP_REPEATS[key])]
         wall = min(r[0] for r in runs)
         code = max(r[1] for r in runs)
