@@ -249,14 +249,11 @@ def _compile_apart(integrator: str) -> bool:
     if marker is None or marker.exists() or os.environ.get("VRSIM_COMPILE_APART") == "0":
         return True
     jit.announce_compile()
-    # the helper's jit must pick the same src-<digest> folder: it gets the base folder
-    env = dict(os.environ, VRSIM_CACHE_DIR=str(marker.parent.parent))
-    env.pop("NUMBA_CACHE_DIR", None)
     started = time.perf_counter()
-    proc = subprocess.Popen(
+    proc = subprocess.Popen(  # it inherits the cache folder (jit exports its base)
         [sys.executable, "-c", "import sys; from vrsim_cli.loop import compile_main; "
          "sys.exit(compile_main(sys.argv[1]))", integrator],
-        env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL, start_new_session=True)  # a terminal's ^C is ours
     try:
         while True:
