@@ -102,3 +102,48 @@ def test_processes_a_run_starts_use_its_cache_folder(tmp_path, variable):
     expected = (tmp_path / "base" / "vrsim" / "numba" if variable == "XDG_CACHE_HOME"
                 else tmp_path / "base")
     assert out == [str(expected / f"src-{jit._source_digest()}")] * 2
+
+
+ALLOCATING = """
+import numpy as np
+
+from vrsim_cli.kernels.jit import kernel
+
+
+@kernel
+def spread(x, n):
+    out = np.empty(n)  # numba's runtime allocates it: the loaded code needs the runtime
+    for i in range(n):
+        out[i] = x * i
+    return out
+"""
+
+PROBE = """
+import sys
+import loadmod
+from vrsim_cli.kernels import jit
+values = loadmod.spread(0.5, 4).tolist()
+print(values, jit.compile_report() > 0.0, "numba.np.linalg" in sys.modules,
+      "scipy.linalg" in sys.modules)
+"""
+
+
+@pytest.mark.skipif(jit.JIT_DISABLED, reason="no compiled code to load with the JIT off")
+def test_kernels_load_from_the_cache_without_initialising_numbas_compiler(tmp_path):
+    """Start-up (issue 16: a warm small run in <= 1.0 s): numba initialises its whole CPU
+    target (imports and registers every implementation it has, ~0.2 s) before it loads a
+    kernel from the cache, which needs only its runtime. A warm process loads and runs an
+    allocating kernel without that (before: numba.np.linalg was imported by every warm
+    run); a compiling one initialises it, with BLAS blocked (scipy.linalg not imported)."""
+    (tmp_path / "loadmod.py").write_text(ALLOCATING)
+    env = {**os.environ, "VRSIM_CACHE_DIR": str(tmp_path / "cache"),
+           "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    env.pop("NUMBA_CACHE_DIR", None)
+    runs = [subprocess.run([sys.executable, "-c", PROBE], cwd=tmp_path, env=env,
+                           capture_output=True, text=True, timeout=300) for _ in range(2)]
+    for proc in runs:
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    first, warm = (proc.stdout.split("]")[-1].split() for proc in runs)
+    assert all(proc.stdout.startswith("[0.0, 0.5, 1.0, 1.5]") for proc in runs)
+    assert first == ["True", "True", "False"]  # compiled: target initialised, no BLAS
+    assert warm == ["False", "False", "False"]  # loaded: neither

@@ -100,29 +100,32 @@ def cache_note() -> str | None:
 _configure()
 
 
-def _import_numba():
-    """numba, initialised without BLAS. numba's CPU target looks for BLAS through
-    scipy.linalg.cython_blas when it first compiles or loads a kernel (numba/np/
-    arraymath.py), which imports all of scipy.linalg (~0.2-0.5 s of every run's start-up)
-    only to enable np.dot and @ inside kernels, which ours must not use: their results
-    would depend on the machine's BLAS. With the import blocked while the target
-    initialises, a kernel that tried would fail to compile; afterwards scipy.linalg
-    imports as usual for whoever needs it (collision proxies)."""
+def _refresh_target() -> None:
+    """Initialise numba's CPU target (its implementations, once per process) without
+    BLAS, before the first compile. numba's CPU target looks for BLAS through
+    scipy.linalg.cython_blas when it initialises (numba/np/arraymath.py), which imports all
+    of scipy.linalg (~0.2-0.5 s) only to enable np.dot and @ inside kernels, which ours
+    must not use: their results would depend on the machine's BLAS. With the import
+    blocked meanwhile, a kernel that tried would fail to compile; afterwards scipy.linalg
+    imports as usual for whoever needs it (collision proxies). A run whose kernels all
+    come from the cache never initialises it (`_SafeFunctionCache.load_overload`)."""
+    if _TARGET_READY:
+        return
     blocked = "scipy.linalg.cython_blas" not in sys.modules
     if blocked:
         sys.modules["scipy.linalg.cython_blas"] = None
     try:
-        import numba as nb
         from numba.core.registry import cpu_target
 
         cpu_target.target_context.refresh()
+        _TARGET_READY.append(True)
     finally:
         if blocked and sys.modules.get("scipy.linalg.cython_blas", 0) is None:
             del sys.modules["scipy.linalg.cython_blas"]
-    return nb
 
 
-numba = _import_numba()
+_TARGET_READY: list = []
+import numba  # noqa: E402
 from numba.core import event  # noqa: E402
 from numba.core import types as nbtypes  # noqa: E402
 
@@ -141,6 +144,7 @@ class _CompileWatch(event.Listener):
         if self.depth == 0:
             self.started = time.perf_counter()
             self.announce()
+            _refresh_target()  # before numba's own refresh in the compile
             # numba's compile makes reference cycles by the million (IR, types, LLVM
             # modules): with the collector paused for start-up (__main__), a first
             # stepped compile peaked at 0.96 GB instead of 0.55 GB (the largest particle
@@ -280,6 +284,21 @@ class _SafeFunctionCache(caching.FunctionCache):
     def __init__(self, py_func):
         super().__init__(py_func)
         self._cache_file.__class__ = _SafeIndexDataCacheFile  # same state, safe save
+
+    def load_overload(self, sig, target_context):
+        """numba's, without its first step: numba refreshes the target context before
+        every load (the first refresh imports and registers all of numba's
+        implementations: ~0.1 s of a warm small run's ~0.7 s), of which loaded machine
+        code needs only the symbols some of those imports give the linker: numba's
+        runtime (reference counts, allocator) and the hash secret. A compile still
+        refreshes it; `_CompileWatch` makes that first refresh with BLAS blocked
+        (`_refresh_target`)."""
+        import numba.cpython.hashing  # noqa: F401  (its import adds the hash secret)
+        from numba.core.runtime import rtsys
+
+        rtsys.initialize(target_context)
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
 
     def _index_key(self, sig, codegen):
         """numba keys a closure by the pickle of its cells, and a kernel's pickle carries
