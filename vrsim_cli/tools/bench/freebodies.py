@@ -359,8 +359,8 @@ def timed_run(scene: Path, out: Path, cache: str | None) -> tuple[float, int, st
     return time.perf_counter() - start, proc.returncode, proc.stderr
 
 
-# numba started as every run starts it (kernels/jit.py: its import and CPU target, no
-# scipy BLAS bindings) and nothing else of vrsim
+# numba imported as every run imports it (kernels/jit.py; its CPU target is set up only
+# when something compiles) and nothing else of vrsim
 NUMBA_FLOOR = "import vrsim_cli.kernels.jit"
 
 
@@ -401,10 +401,10 @@ def startup_rows(quick: bool) -> list:
         code = max(r[1] for r in runs)
         rows.append(_startup_row("warm cache", wall, code, out))
         # the floor on this machine, for context: a Python that only imports numba
-        # (numba imports numpy) and sets up its CPU target, as any numba kernel needs
+        # (numba imports numpy) as every run does
         floor = [timed_python(NUMBA_FLOOR) for _ in range(STARTUP_REPEATS[key])]
         rows.append(Row(PROBLEM, "python", f"start-up: reference, `python -c` importing "
-                        f"numba and setting up its CPU target (kernels/jit.py only)", 1, 1,
+                        f"numba (kernels/jit.py only)", 1, 1,
                         min(r[0] for r in floor), {"exit_code": max(r[1] for r in floor)}))
         if not quick:
             wall, code, _ = timed_run(scene, out, str(Path(tmp) / "empty-cache"))
