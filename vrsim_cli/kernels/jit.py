@@ -111,17 +111,44 @@ def _refresh_target() -> None:
     come from the cache never initialises it (`_SafeFunctionCache.load_overload`)."""
     if _TARGET_READY:
         return
+    with _blas_blocked():
+        from numba.core.registry import cpu_target
+
+        cpu_target.target_context.refresh()
+    import numba.np.linalg as linalg  # what np.dot, @ and np.linalg call when lowered
+
+    for name in ("ensure_blas", "ensure_lapack"):
+        setattr(linalg, name, _refusing(getattr(linalg, name)))
+    _TARGET_READY.append(True)
+
+
+@contextlib.contextmanager
+def _blas_blocked():
+    """scipy.linalg.cython_blas made unimportable meanwhile (unless already imported):
+    numba.np.arraymath, when first imported, then finds no BLAS (`_HAVE_BLAS` False:
+    np.correlate and np.convolve take their plain loops)."""
     blocked = "scipy.linalg.cython_blas" not in sys.modules
     if blocked:
         sys.modules["scipy.linalg.cython_blas"] = None
     try:
-        from numba.core.registry import cpu_target
-
-        cpu_target.target_context.refresh()
-        _TARGET_READY.append(True)
+        yield
     finally:
         if blocked and sys.modules.get("scipy.linalg.cython_blas", 0) is None:
             del sys.modules["scipy.linalg.cython_blas"]
+
+
+def _refusing(ensure):
+    """numba's check that BLAS/LAPACK is there, refusing while one of our kernels
+    compiles (`kernel`): np.dot, @ or np.linalg in a kernel is a compile error there, not
+    a result that depends on the machine's BLAS; other numba code in the process keeps
+    numba's own check."""
+    def check():
+        if _WATCH.depth > 0 and _WATCH.ours:
+            raise ImportError("vrsim kernels must not use BLAS or LAPACK (np.dot, @, "
+                              "np.linalg): their results would depend on the machine; "
+                              "write the algebra out (kernels/linalg.py)")
+        return ensure()
+    return check
 
 
 _TARGET_READY: list = []
@@ -139,10 +166,12 @@ class _CompileWatch(event.Listener):
         self.seconds = 0.0
         self.announced = False
         self.paused = False
+        self.ours = False  # the compile in progress is of a `kernel` (its outermost one)
 
     def on_start(self, ev):
         if self.depth == 0:
             self.started = time.perf_counter()
+            self.ours = getattr(ev.data["dispatcher"], "_vrsim_kernel", False)
             self.announce()
             _refresh_target()  # before numba's own refresh in the compile
             # numba's compile makes reference cycles by the million (IR, types, LLVM
@@ -220,6 +249,7 @@ def kernel(fn=None, *, inline: str = "never"):
         d = numba.njit(cache=_CACHE["dir"] is not None, fastmath=False, inline=inline,
                        error_model="numpy", nogil=True, no_cfunc_wrapper=True)(f)
         if not JIT_DISABLED:
+            d._vrsim_kernel = True  # `_refusing`
             d.get_call_template = types.MethodType(_unliteral_call_template, d)
             if _CACHE["dir"] is not None:
                 d._cache = _SafeFunctionCache(d.py_func)
@@ -298,7 +328,12 @@ class _SafeFunctionCache(caching.FunctionCache):
 
         rtsys.initialize(target_context)
         with self._guard_against_spurious_io_errors():
-            return self._load_overload(sig, target_context)
+            if "numba.np.arraymath" in sys.modules:
+                return self._load_overload(sig, target_context)
+            # the entry's pickle may import numba.np.arraymath (environment._rebuild_env;
+            # a.sum(), np.sort, the stepped kernels): with BLAS blocked, as the refresh
+            with _blas_blocked():
+                return self._load_overload(sig, target_context)
 
     def _index_key(self, sig, codegen):
         """numba keys a closure by the pickle of its cells, and a kernel's pickle carries
