@@ -147,3 +147,25 @@ def test_kernels_load_from_the_cache_without_initialising_numbas_compiler(tmp_pa
     assert all(proc.stdout.startswith("[0.0, 0.5, 1.0, 1.5]") for proc in runs)
     assert first == ["True", "True", "False"]  # compiled: target initialised, no BLAS
     assert warm == ["False", "False", "False"]  # loaded: neither
+
+
+@pytest.mark.skipif(jit.JIT_DISABLED, reason="nothing is compiled with the JIT off")
+def test_a_cache_folder_that_cannot_be_written_is_said_once_with_the_fix(tmp_path):
+    """The kernels compile in memory for the run, and the run says why they are not kept
+    and what to do (before: "not cached", then "compiled ... (kept for the next runs)")."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder\n")  # a folder cannot be made below it, even as root
+    scene = tmp_path / "one.yaml"
+    scene.write_text("vrsim: 1\nduration: 0.01\nframe_rate: 100\ndt: 0.001\n"
+                     "integrator: symplectic-euler\n"
+                     "bodies: [{name: p, mass: 1, position: [0, 0, 1]}]\n")
+    env = {**os.environ, "VRSIM_CACHE_DIR": str(blocker / "cache")}
+    env.pop("NUMBA_CACHE_DIR", None)
+    proc = subprocess.run([sys.executable, "-m", "vrsim_cli", "run", str(scene), "-o",
+                           str(tmp_path / "one.csv")], env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "kept for the next runs" not in proc.stderr, proc.stderr
+    assert "(not kept: the kernel cache folder" in proc.stderr, proc.stderr
+    assert "set VRSIM_CACHE_DIR to a writable folder" in proc.stderr, proc.stderr
+    assert (tmp_path / "one.csv").is_file()

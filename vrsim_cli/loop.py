@@ -198,7 +198,9 @@ def prepare(model: Model, say: Callable[..., None] | None = None) -> None:
         dynamics.prepare(model)
     seconds = jit.compile_report() - before
     if seconds > 0.0 and say is not None:
-        say(f"vrsim: compiled in {seconds:.1f} s (kept for the next runs)", err=True)
+        note = jit.cache_note()  # why nothing is kept, and what to do about it
+        say(f"vrsim: compiled in {seconds:.1f} s "
+            + (f"(not kept: {note})" if note else "(kept for the next runs)"), err=True)
 
 
 # A stepped scene's first compile is made by a helper process. The stepped kernels are
