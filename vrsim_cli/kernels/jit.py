@@ -105,10 +105,11 @@ def _refresh_target() -> None:
     BLAS, before the first compile. numba's CPU target looks for BLAS through
     scipy.linalg.cython_blas when it initialises (numba/np/arraymath.py), which imports all
     of scipy.linalg (~0.2-0.5 s) only to enable np.dot and @ inside kernels, which ours
-    must not use: their results would depend on the machine's BLAS. With the import
-    blocked meanwhile, a kernel that tried would fail to compile; afterwards scipy.linalg
-    imports as usual for whoever needs it (collision proxies). A run whose kernels all
-    come from the cache never initialises it (`_SafeFunctionCache.load_overload`)."""
+    must not use: their results would depend on the machine's BLAS (`_refusing` makes
+    such a kernel a compile error). Afterwards scipy.linalg imports as usual for whoever
+    needs it (collision proxies). A run whose kernels all come from the cache never
+    initialises it (`_SafeFunctionCache.load_overload`)."""
+    global _TARGET_READY
     if _TARGET_READY:
         return
     with _blas_blocked():
@@ -119,7 +120,7 @@ def _refresh_target() -> None:
 
     for name in ("ensure_blas", "ensure_lapack"):
         setattr(linalg, name, _refusing(getattr(linalg, name)))
-    _TARGET_READY.append(True)
+    _TARGET_READY = True
 
 
 @contextlib.contextmanager
@@ -151,7 +152,7 @@ def _refusing(ensure):
     return check
 
 
-_TARGET_READY: list = []
+_TARGET_READY = False  # `_refresh_target` has run
 import numba  # noqa: E402
 from numba.core import event  # noqa: E402
 from numba.core import types as nbtypes  # noqa: E402
@@ -327,13 +328,12 @@ class _SafeFunctionCache(caching.FunctionCache):
         from numba.core.runtime import rtsys
 
         rtsys.initialize(target_context)
-        with self._guard_against_spurious_io_errors():
-            if "numba.np.arraymath" in sys.modules:
-                return self._load_overload(sig, target_context)
-            # the entry's pickle may import numba.np.arraymath (environment._rebuild_env;
-            # a.sum(), np.sort, the stepped kernels): with BLAS blocked, as the refresh
-            with _blas_blocked():
-                return self._load_overload(sig, target_context)
+        # the entry's pickle may import numba.np.arraymath (environment._rebuild_env;
+        # a.sum(), np.sort, the stepped kernels): with BLAS blocked, as the refresh
+        first = "numba.np.arraymath" not in sys.modules
+        with self._guard_against_spurious_io_errors(), \
+                (_blas_blocked() if first else contextlib.nullcontext()):
+            return self._load_overload(sig, target_context)
 
     def _index_key(self, sig, codegen):
         """numba keys a closure by the pickle of its cells, and a kernel's pickle carries

@@ -379,17 +379,16 @@ def startup_rows(quick: bool) -> list:
     kernel cache of this process) and, in the full run, `start-up: empty cache` (one run
     with a new, empty cache folder: it compiles). steps: the scene's 1500; sanity: the
     exit code and the position error of the last CSV row against the closed form."""
-    from vrsim_cli.kernels import jit
+    from vrsim_cli.kernels import jit  # noqa: F401  (exports the cache folder)
     from vrsim_cli.tools.bench.problems import Row
 
     scene = _startup_scene()
     if scene is None:
         return []
     key = "quick" if quick else "full"
-    # this process's cache: jit exports its base folder (VRSIM_CACHE_DIR), which the runs
-    # inherit (given jit.cache_dir() itself, a run nested another src-<digest> folder
-    # in it and compiled everything again there)
-    jit.cache_dir()
+    # warm runs: this process's cache, which they inherit (importing jit exports its base
+    # folder as VRSIM_CACHE_DIR; given jit.cache_dir() itself, a run nested another
+    # src-<digest> folder in it and compiled everything again there)
     warm = None
     rows = []
     with tempfile.TemporaryDirectory(prefix="vrsim-bench-") as tmp:
