@@ -22,8 +22,8 @@ API (usable by any stage; `stages/collision/stepped.py` packs the tables):
                            contacts of one instant)
 
     detect(gf, S, step, sweep, tolerance, planar) -> (k, C, F, nf)
-        C (>= k, C_SIZE): contact rows [body_a, body_b, point (3), normal (3), depth]
-        with body_a < body_b, the normal from A to B, depth > 0 penetrating, < 0 a gap;
+        C (>= k, C_SIZE): contact rows [body_a, body_b, point (3), normal (3), depth,
+        rounding a, rounding b] with body_a < body_b, the normal from A to B, depth > 0 penetrating, < 0 a gap;
         sorted by (body_a, body_b), a pair's points in the order its pair function made
         them (the stepped solver's warm start matches contacts by pair and that rank).
         F (>= nf, 2): geom pairs (g1 < g2) for the Python detection.
@@ -50,8 +50,11 @@ G_BODY, G_TYPE, G_LPOS, G_LQUAT, G_TURNED, G_RADIUS, G_HALF, G_PN, G_PO, G_RBOUN
 G_SIZE = 22
 # world geoms W (n_geom, 12): position, then R row-major (its columns: the geom's axes)
 W_POS, W_R, W_SIZE = 0, 3, 12
-# contact rows
-C_A, C_B, C_P, C_N, C_D, C_SIZE = 0, 1, 2, 5, 8, 9
+# contact rows; C_ROUND_A, C_ROUND_B: m, the radius of the sphere about each witness point
+# that lies in the body (a sphere's or capsule's radius, 0 on a flat face or an edge), so
+# the stepped solver carries that sphere's centre, not the witness point (kernels.stepped:
+# `end_separations`)
+C_A, C_B, C_P, C_N, C_D, C_ROUND_A, C_ROUND_B, C_SIZE = 0, 1, 2, 5, 8, 9, 10, 11
 
 EPS = 1e-12  # as narrowphase._EPS
 UP = (0.0, 1.0, 0.0)
@@ -1129,6 +1132,32 @@ def pair_contacts(gf, W, ga, gb, margin, C, k):
     return cylinder_sphere(gf, W, ga, gb, margin, C, k)
 
 
+@kernel(inline="always")
+def _rounding(gf, g):
+    """m: every closed form here puts a sphere's or capsule's witness point at its radius
+    from the sphere (or segment point) it came from; other shapes' points are on faces,
+    edges or corners."""
+    t = int(gf[g, G_TYPE])
+    return gf[g, G_RADIUS] if t == SPHERE or t == CAPSULE else 0.0
+
+
+@kernel(inline="always")
+def own_rows(gf, ga, gb, C, k, got):
+    """Rows [k, k + got) that pair_contacts(ga, gb) wrote, given to their bodies: the
+    lower body first (the normal turned to point from it), and each side's rounding."""
+    ba, bb = int(gf[ga, G_BODY]), int(gf[gb, G_BODY])
+    flip = ba > bb
+    rga, rgb = _rounding(gf, ga), _rounding(gf, gb)
+    for q in range(k, k + got):
+        C[q, C_A] = min(ba, bb)
+        C[q, C_B] = max(ba, bb)
+        C[q, C_ROUND_A] = rgb if flip else rga
+        C[q, C_ROUND_B] = rga if flip else rgb
+        if flip:
+            for c in range(3):
+                C[q, C_N + c] = -C[q, C_N + c]
+
+
 @kernel
 def narrow_phase(gf, W, P, m, sweep, tolerance, C):
     """Contacts of the m candidate pairs P: per pair, the closed form with the margin
@@ -1153,13 +1182,7 @@ def narrow_phase(gf, W, P, m, sweep, tolerance, C):
         margin = sweep[ba] + sweep[bb] + tolerance
         C = _grow(C, k, MAX_PER_PAIR)
         got = pair_contacts(gf, W, ga, gb, margin, C, k)
-        flip = ba > bb
-        for q in range(k, k + got):
-            C[q, C_A] = min(ba, bb)
-            C[q, C_B] = max(ba, bb)
-            if flip:
-                for c in range(3):
-                    C[q, C_N + c] = -C[q, C_N + c]
+        own_rows(gf, ga, gb, C, k, got)
         k += got
     if k > 1:
         C = sort_by_pair(C, k)

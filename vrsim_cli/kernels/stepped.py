@@ -86,7 +86,8 @@ K_IMA, K_IMB = 78, 79  # inverse masses, 1/kg
 K_SN = 80  # shock propagation's impulses on the upper body (normal, two tangents), N s
 K_LK = 83  # impact impulses with the bodies' turning locked (normal, two tangents), N s
 K_KLIN = 86  # m/s: the kick's change of the relative linear velocity along n, t1, t2
-K_SIZE = 89
+K_ROUND = 89  # m: the rounding radii at the witness points on A and B (collide.C_ROUND_A)
+K_SIZE = 91
 
 MAX_ELASTIC_PASSES = 32  # impacts per contact in a step before its restitution drops to 0
 MAX_IMPACT_SWEEPS = 64  # sweeps over the pairs of the impact phase
@@ -302,6 +303,8 @@ def prepare(K, i, C, q, S, inv_m, IW, V0, W0, U, Wv, rb, rp, prm):
     K[i, K_MU] = mu
     K[i, K_GAP] = -depth
     K[i, K_DEPTH] = depth
+    K[i, K_ROUND] = C[q, kc.C_ROUND_A]
+    K[i, K_ROUND + 1] = C[q, kc.C_ROUND_B]
     for j in range(3):
         K[i, K_KICK + j] = rel(K, i, j, U, Wv) - rel(K, i, j, V0, W0)
         K[i, K_KLIN + j] = _lin(K, i, j, U) - _lin(K, i, j, V0)
@@ -986,13 +989,20 @@ def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL, until_fixed):
 
 @kernel
 def end_separations(mf, K, k, S, RS, S1, RS1):
-    """K_SEND: each contact's separation after the step, its witness points carried with
-    their bodies (rotated by R1 R0^T), measured along its normal."""
+    """K_SEND: each contact's separation after the step, measured along its normal, with
+    the points that define it carried with their bodies (rotated by R1 R0^T): a corner
+    or a point of a face, or for a rounded witness (a sphere's, a capsule's) the centre
+    of its rounding, which keeps its radius along the normal. Carrying a rounded witness
+    point itself would lift it off the surface by r (1 - cos theta) in a turn theta (a
+    capsule on its end cap at 0.3 rad per step: 2-7 mm), and the position pass would
+    leave that much penetration for later steps to push out, gaining energy."""
     for i in range(k):
         a, b = int(K[i, K_A]), int(K[i, K_B])
         n = get(K, i, K_N)
-        da = moved(mf, a, get(K, i, K_RA), S, RS, S1, RS1)
-        db = moved(mf, b, get(K, i, K_RB), S, RS, S1, RS1)
+        core_a = la.sub(get(K, i, K_RA), la.scale(K[i, K_ROUND], n))
+        core_b = la.add(get(K, i, K_RB), la.scale(K[i, K_ROUND + 1], n))
+        da = moved(mf, a, core_a, S, RS, S1, RS1)
+        db = moved(mf, b, core_b, S, RS, S1, RS1)
         K[i, K_SEND] = K[i, K_GAP] + la.dot(la.sub(db, da), n)
 
 
@@ -1410,12 +1420,7 @@ def _make_entry(integ: int, kinds: tuple):
                         got = kc.capsule_capsule(gf, W, ga, gb, margin, C, kn)
                 elif YS:
                     got = kc.cylinder_sphere(gf, W, ga, gb, margin, C, kn)
-                for q in range(kn, kn + got):
-                    C[q, kc.C_A] = min(ba, bb)
-                    C[q, kc.C_B] = max(ba, bb)
-                    if ba > bb:
-                        for c in range(3):
-                            C[q, kc.C_N + c] = -C[q, kc.C_N + c]
+                kc.own_rows(gf, ga, gb, C, kn, got)
                 kn += got
             if rnd == 0:
                 C = kc._grow(C, kn, XC.shape[0])
