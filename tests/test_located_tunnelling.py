@@ -253,7 +253,11 @@ SCENES = [(kind, eps, plates, k) for kind in ("sphere", "box", "capsule")
           for k in range(count)]
 # Known failures (2 of the 1008 cases), strict: the day they pass, the mark must go.
 KNOWN = {("capsule", 0.0, False, 13): "a capsule's first impact is found 0.1 mm late",
-         ("capsule", 0.0, True, 1): "a capsule at 661 m/s, eps 0, tunnels through a plate"}
+         ("capsule", 0.0, True, 1): "a capsule at 661 m/s, eps 0, tunnels through a plate: "
+         "impacts at 5.86 (the first, right), 6.03 and 6.06 ms, then 7.54, 8.23 and 9.02 "
+         "ms, and the step ends 66 mm deep, the capsule's axis through the plate's "
+         "mid-plane; likely (not confirmed): response._march arms a touching turning pair "
+         "only once its gap opens beyond round-off, and this one closes without opening"}
 # The suite (CI) runs every third scene, the known failures among them (~1/3 of the
 # ~2.5 min of CPU the whole set takes); VRSIM_SLOW_TESTS=1 runs all 1008 cases, as for
 # the closing notes.
