@@ -90,18 +90,18 @@ SCENES = [(kind, eps, mu, k) for kind in ("box", "capsule", "sphere")
 # Fixed (the cap's centre is carried: tests/test_stepped_separations.py); mu 0 passes.
 # Left, traced: body 2 of the mu 0.3 scene spins at 33 rad/s and rocks on its cap (its
 # axis's vertical component 0.6 -> 0.32 -> 0.6 over 0.1 s) at no depth, and gains
-# 4e-4 to 1.5e-3 J per step (t = 0.25-0.34 s): the velocity solve keeps the cap's
-# *linearised* end gap, but in the step's turn (up to 0.33 rad) the cap's centre also
-# moves to second order (|w_perp|^2 r dt^2 / 2, w_perp its turning across the axis),
-# and the position pass lifts that out, each step, against gravity (1.5e-3 J is a lift
-# of 0.15 mm of the 1 kg body); hypothesis from the trace, not confirmed by a fix. Not fixed: predicting the turn's second-order motion in the
-# solve (or paying the lift from the body's kinetic energy, which item 4 rules out).
+# 4e-4 to 1.5e-3 J per step (t = 0.25-0.34 s). Hypothesis (from the trace, not
+# confirmed): the velocity solve keeps the cap's *linearised* end gap, but in the
+# step's turn (up to 0.33 rad) the cap's centre also moves to second order, and the
+# position pass lifts that out against gravity each step (1.5e-3 J is a lift of
+# 0.15 mm of the 1 kg body). Tried and reverted: adding that second-order sinking
+# (exp(dt w) r - r - dt w x r along n, with the kicked w) to the solve's target made
+# three scenes gain (up to 3.6e-3 J) instead of one.
 KNOWN = {("capsule", 0.0, 0.3, 0)}
 PARAMS = [pytest.param(*p, marks=[pytest.mark.xfail(
-    strict=True, reason="a capsule spinning at 33 rad/s and rocking on its end cap: "
-    "the solve keeps the cap's gap to first order in the step's 0.33 rad turn, and the "
-    "position pass lifts out the second-order sinking (~0.1 mm) each step: up to "
-    "1.5e-3 J per step")]
+    strict=True, reason="a capsule spinning at 33 rad/s and rocking on its end cap gains "
+    "up to 1.5e-3 J per step; likely (not confirmed) the position pass lifting out what "
+    "the step's 0.33 rad turn sinks it beyond the solve's first order")]
     if p in KNOWN else []) for p in SCENES]
 
 
