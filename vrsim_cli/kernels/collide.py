@@ -23,7 +23,8 @@ API (usable by any stage; `stages/collision/stepped.py` packs the tables):
 
     detect(gf, S, step, sweep, tolerance, planar) -> (k, C, F, nf)
         C (>= k, C_SIZE): contact rows [body_a, body_b, point (3), normal (3), depth,
-        rounding a, rounding b] with body_a < body_b, the normal from A to B, depth > 0 penetrating, < 0 a gap;
+        rounding a, rounding b] with body_a < body_b, the normal from A to B, depth > 0
+        penetrating, < 0 a gap;
         sorted by (body_a, body_b), a pair's points in the order its pair function made
         them (the stepped solver's warm start matches contacts by pair and that rank).
         F (>= nf, 2): geom pairs (g1 < g2) for the Python detection.
