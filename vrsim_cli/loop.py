@@ -278,11 +278,24 @@ def compile_main(integrator: str) -> int:
     (atomically). Exit 0 when the entry is compiled and cached."""
     import gc
     import os
+    import sys
 
     gc.disable()  # as `vrsim` starts: jit then compiles with its collector thresholds
     parent = os.getppid()
+    # a run killed by SIGKILL cannot kill its helper: on Linux the kernel does it when the
+    # run dies (PR_SET_PDEATHSIG), elsewhere the helper notices within 0.2 s (a thread)
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
 
-    def orphaned():  # a run killed by SIGKILL cannot kill its helper: it stops itself
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # 1: PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent:  # the run died before that
+        os._exit(1)
+
+    def orphaned():
         while os.getppid() == parent:
             time.sleep(0.2)
         os._exit(1)
