@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import textwrap
 from functools import lru_cache
@@ -150,12 +151,26 @@ def _warm_scenario(path: Path) -> None:
     run(model, make_state(model), None)
 
 
-def _warm_stepped(name: str) -> None:
+def _warm_stepped(name: str) -> dict | None:
     """The stepped entry of integrator `name`, compiled as `vrsim run` does it (a helper
-    process, which leaves the marker that later runs look for)."""
+    process, which leaves the marker that later runs look for). When no kernel of
+    kernels/stepped.py was in the cache before, returns the helper's peak resident memory
+    {"peak_mb": ...}: a first compile's, which test_memory holds to its limit (this
+    process's largest waited-for child: at least the helper's own peak). The other
+    workers fill the cache meanwhile, and the helper loads the kernels of theirs that the
+    stepped entry calls: it peaked at 475 MB so here, 523 MB with a cache of its own."""
+    import resource
+
+    from vrsim_cli.kernels import jit
     from vrsim_cli.loop import _compile_apart
 
+    folder = jit.cache_dir()
+    cold = folder is not None and not jit.JIT_DISABLED and \
+        not any(folder.glob("kernels_*/stepped.*.nbi"))
     _compile_apart(name)
+    if not cold:
+        return None
+    return {"peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
 
 
 # the integrators the stepped tests use (each entry is ~60 s of CPU once: compiled here
@@ -164,45 +179,63 @@ STEPPED_INTEGRATORS = ("symplectic-euler", "verlet", "rk4")
 
 
 def warm_up_units() -> list:
-    """(name, callable) of the kernels every session compiles up front."""
+    """(name, callable, prerequisite) of the kernels every session compiles up front. The
+    later stepped entries wait for the first: they share most of its ~150 kernels, which
+    they then load from the cache (~30 s each here) instead of compiling them again side
+    by side with it (~100 s each)."""
     from functools import partial
 
     from vrsim_cli.kernels.dynamics import INTEGRATOR_CODES
 
-    return [(f"stepped-{name}", partial(_warm_stepped, name))
-            for name in STEPPED_INTEGRATORS] + \
-        [(f"integrator-{name}", partial(_warm_integrator, name))
+    first = f"stepped-{STEPPED_INTEGRATORS[0]}"
+    return [(f"stepped-{name}", partial(_warm_stepped, name), None if k == 0 else first)
+            for k, name in enumerate(STEPPED_INTEGRATORS)] + \
+        [(f"integrator-{name}", partial(_warm_integrator, name), None)
          for name in INTEGRATOR_CODES] + \
-        [(f"scenario-{path.stem}", partial(_warm_scenario, path))
+        [(f"scenario-{path.stem}", partial(_warm_scenario, path), None)
          for path in sorted(SCENARIOS.glob("*.yaml"))]
 
 
-def warm_up(lock_dir: Path, worker: int, workers: int) -> list[str]:
+def warm_up(lock_dir: Path, worker: int, workers: int, poll_s: float = 0.2) -> list[str]:
     """Compile (or load) every unit of `warm_up_units` that no other worker of this
-    session has: a first pass takes the units whose lock is free (worker k starts k/n of
-    the way down the list, so the workers start on different units), a second pass waits
-    for the rest to be done by whoever holds them. Returns the names this worker ran."""
+    session has: each worker goes down the list (worker k starts k/n of the way down, so
+    the workers start on different units) taking every unit whose lock is free and whose
+    prerequisite is done, and polls until every unit is done by someone. Returns the names
+    this worker ran."""
     import fcntl
+    import time
 
     units = warm_up_units()
     start = len(units) * worker // max(workers, 1)
     units = units[start:] + units[:start]
     lock_dir.mkdir(parents=True, exist_ok=True)
-    ran, waiting = [], []
-    for blocking in (False, True):
-        for name, build in (units if not blocking else waiting):
+
+    def done(name):
+        return (lock_dir / f"{name}.done").exists()
+
+    ran = []
+    while True:
+        left = [unit for unit in units if not done(unit[0])]
+        if not left:
+            return ran
+        for name, build, after in left:
+            if after is not None and not done(after):
+                continue
             with open(lock_dir / f"{name}.lock", "a+") as lock:
                 try:
-                    fcntl.flock(lock, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+                    fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 except BlockingIOError:
-                    waiting.append((name, build))
-                    continue
-                done = lock_dir / f"{name}.done"
-                if not done.exists():
-                    build()
-                    done.touch()
+                    continue  # another worker builds it
+                if not done(name):
+                    record = build()
+                    if record is not None:  # what the unit measured (`warm_up_record`)
+                        (lock_dir / f"{name}.json").write_text(json.dumps(record))
+                    (lock_dir / f"{name}.done").touch()
                     ran.append(name)
-    return ran
+        time.sleep(poll_s)
+
+
+WARM_UP_FOLDER = "vrsim-warm-up"  # in the session's temporary folder
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -215,8 +248,23 @@ def _warm_up_workers(request, tmp_path_factory):
     worker = getattr(request.config, "workerinput", None)
     if worker is None or worker["workercount"] < 2:
         return
-    warm_up(tmp_path_factory.getbasetemp().parent / "vrsim-warm-up",
+    warm_up(tmp_path_factory.getbasetemp().parent / WARM_UP_FOLDER,
             int(worker["workerid"].removeprefix("gw")), worker["workercount"])
+
+
+@pytest.fixture(scope="session")
+def warm_up_record(request, tmp_path_factory, _warm_up_workers):
+    """warm_up_record(unit) -> what that unit of this session's warm-up measured (a dict),
+    or None (no warm-up in this session, or the unit measured nothing)."""
+    worker = getattr(request.config, "workerinput", None)
+    folder = tmp_path_factory.getbasetemp().parent / WARM_UP_FOLDER
+
+    def record(unit: str) -> dict | None:
+        path = folder / f"{unit}.json"
+        return json.loads(path.read_text()) \
+            if worker is not None and worker["workercount"] >= 2 and path.exists() else None
+
+    return record
 
 
 @pytest.fixture(scope="session")
@@ -225,7 +273,7 @@ def _kernels_compiled(tmp_path_factory, _warm_up_workers):
     test: on a fresh machine the first run of each integrator prints a compile notice on
     stderr, which tests that read stderr line by line must not depend on. The notice itself
     is tested in test_cli.py."""
-    for name, build in warm_up_units():
+    for name, build, _ in warm_up_units():
         if name.startswith("integrator-"):
             build()
 
