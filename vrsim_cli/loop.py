@@ -284,12 +284,13 @@ def compile_main(integrator: str) -> int:
     parent = os.getppid()
     # a run killed by SIGKILL cannot kill its helper: on Linux the kernel does it when the
     # run dies (PR_SET_PDEATHSIG), elsewhere the helper notices within 0.2 s (a thread)
+    watched = False
     if sys.platform.startswith("linux"):
         import ctypes
         import signal
 
         try:
-            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # 1: PDEATHSIG
+            watched = ctypes.CDLL(None).prctl(1, int(signal.SIGKILL)) == 0  # 1: PDEATHSIG
         except (OSError, AttributeError):
             pass
     if os.getppid() != parent:  # the run died before that
@@ -300,9 +301,10 @@ def compile_main(integrator: str) -> int:
             time.sleep(0.2)
         os._exit(1)
 
-    import threading
+    if not watched:
+        import threading
 
-    threading.Thread(target=orphaned, daemon=True).start()
+        threading.Thread(target=orphaned, daemon=True).start()
 
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.scene.spec import parse_scene
