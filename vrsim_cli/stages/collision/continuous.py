@@ -10,7 +10,7 @@ two states (`motion`), so the swept path is the one the integrator actually took
 - every other pair: conservative advancement (Mirtich 1996; Zhang et al. 2006): with the
   exact distance d(t) and a bound mu on how fast any surface point of one body can
   approach the other (|v_B - v_A| + |w_A| R_A + |w_B| R_B, R the bounding radius about the
-  body's origin), advance t by d/mu. The distance cannot reach zero within that time, so
+  body's origin; against a plane |n . v| instead of |v_B - v_A|), advance t by d/mu. The distance cannot reach zero within that time, so
   the TOI is never overshot; iterate until d <= epsilon.
 """
 
@@ -88,12 +88,13 @@ def approach_bound(cm, before, after, ia, ib) -> np.ndarray:
     """(P,) m/s: a bound on how fast any surface point of geom ia can approach geom ib
     while the bodies move from `before` to `after`: the larger of the two ends' relative
     speed |v_B - v_A| (for constant accelerations |v(t)| is convex, so its maximum over
-    the step is at an end) plus |w| R for each turning body (R its bounding radius about
-    the body's origin, |w| the larger of the two ends'). Conservative advancement along
-    the integrator's own path steps by distance / bound."""
+    the step is at an end; against a plane, |n . v|, affine in t as well) plus |w| R for
+    each turning body (R its bounding radius about the body's origin, |w| the larger of
+    the two ends'). Conservative advancement along the integrator's own path steps by
+    distance / bound."""
     ba, bb = cm.geom_body[ia], cm.geom_body[ib]
-    rel = max_norm(before.body_vel[bb] - before.body_vel[ba],
-                   after.body_vel[bb] - after.body_vel[ba])
+    rel = np.maximum(linear_rate(cm, ia, ib, before.body_vel[ba], before.body_vel[bb]),
+                     linear_rate(cm, ia, ib, after.body_vel[ba], after.body_vel[bb]))
     for g, body in ((ia, ba), (ib, bb)):
         w = max_norm(before.body_angvel[body], after.body_angvel[body])
         # planes have an infinite bounding radius but never turn: 0 * inf must not be NaN
@@ -103,6 +104,20 @@ def approach_bound(cm, before, after, ia, ib) -> np.ndarray:
 
 def max_norm(a, b) -> np.ndarray:
     return np.maximum(np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1))
+
+
+def linear_rate(cm, ia, ib, vel_a, vel_b) -> np.ndarray:
+    """(P,) m/s: how fast the translation (vel_a, vel_b (P, 3)) can close the gap of geoms
+    ia, ib: |v_B - v_A|, but against a plane only the other body's speed along the
+    plane's normal, |n . v| (a plane is fixed in the world whatever its body does, and a
+    body moving along it does not approach it: bounding that by |v| made conservative
+    advancement crawl at tolerance / |v| for a box sliding fast down an incline)."""
+    rate = np.linalg.norm(vel_b - vel_a, axis=1)
+    for plane, other in ((ia, vel_b), (ib, vel_a)):
+        sel = np.flatnonzero(cm.geom_type[plane] == PLANE)
+        if len(sel):
+            rate[sel] = np.abs((cm.geom_plane_normal[plane[sel]] * other[sel]).sum(1))
+    return rate
 
 
 def pair_distance(cm, world, ia, ib):
@@ -153,7 +168,7 @@ def time_of_impact(cm, body_pos, body_quat, body_vel, body_angvel, ia, ib, dt: f
     # Planes have an infinite bounding radius but never turn: 0 * inf must not be NaN.
     spin = w_a * np.where(w_a > 0, cm.geom_rbound[ia[todo]], 0.0) + \
         w_b * np.where(w_b > 0, cm.geom_rbound[ib[todo]], 0.0)
-    mu = np.linalg.norm(vel[bb[todo]] - vel[ba[todo]], axis=1) + spin
+    mu = linear_rate(cm, ia[todo], ib[todo], vel[ba[todo]], vel[bb[todo]]) + spin
     t = np.zeros(m)
     result = np.full(m, np.inf)
     live = np.arange(m)
