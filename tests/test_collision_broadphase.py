@@ -3,6 +3,8 @@ all-pairs test finds (the truth), including planes and oversized boxes."""
 
 from __future__ import annotations
 
+from unittest import mock
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -21,6 +23,13 @@ def boxes(seed: int, n: int, spread: float, large: int = 0, planes: int = 0):
     return lo, hi
 
 
+def all_pairs(lo, hi):
+    """The truth, pair by pair in plain Python: boxes overlap (touching counts) when
+    they do on every axis."""
+    return [(i, j) for i in range(len(lo)) for j in range(i + 1, len(lo))
+            if all(lo[i, a] <= hi[j, a] and lo[j, a] <= hi[i, a] for a in range(3))]
+
+
 def pairs(lo, hi, method):
     i, j = candidate_pairs(lo, hi, method)
     assert np.all(i < j)
@@ -32,9 +41,15 @@ def pairs(lo, hi, method):
        spread=st.floats(0.1, 20.0), large=st.integers(0, 3), planes=st.integers(0, 2))
 def test_grid_and_sweep_and_prune_find_the_all_pairs_answer(seed, n, spread, large, planes):
     lo, hi = boxes(seed, n, spread, min(large, n), min(planes, n))
-    truth = pairs(lo, hi, "brute")
+    truth = all_pairs(lo, hi)
+    assert pairs(lo, hi, "brute") == truth
     assert pairs(lo, hi, "grid") == truth  # sorted by (i, j), no duplicates
     assert pairs(lo, hi, "sap") == truth
+    # the grid and sweep and prune themselves also below ALL_PAIRS_N, where
+    # candidate_pairs tests every pair instead
+    with mock.patch.object(broadphase, "ALL_PAIRS_N", 1):
+        assert pairs(lo, hi, "grid") == truth
+        assert pairs(lo, hi, "sap") == truth
 
 
 def test_touching_boxes_count_as_overlapping():
@@ -65,3 +80,17 @@ def test_boxes_touching_exactly_far_from_the_origin_are_paired():
     for method in ("grid", "sap"):
         got = broadphase.candidate_pairs(lo, hi, method)
         assert [x.tolist() for x in got] == [x.tolist() for x in expected]
+
+
+def test_a_few_boxes_give_the_all_pairs_answer_on_every_path():
+    """Around ALL_PAIRS_N (the all-at-once path below it, the grid and sweep and prune
+    above it): dense and sparse boxes, oversized ones, planes, touching ones."""
+    for n in range(broadphase.ALL_PAIRS_N + 4):
+        for seed in range(12):
+            lo, hi = boxes(seed, n, spread=0.3 + seed, large=min(seed % 3, n),
+                           planes=min(seed % 2, n))
+            if seed % 4 == 3 and n >= 2:  # two boxes touching exactly on a face
+                hi[1, 0] = lo[0, 0]
+            truth = all_pairs(lo, hi)
+            for method in ("grid", "sap", "brute"):
+                assert pairs(lo, hi, method) == truth, (n, seed, method)
