@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import json
 import struct
@@ -267,3 +268,73 @@ def test_frames_show_keyframed_colours_and_scales(invoke, write_scene, tmp_path)
     f = (h / 2) / math.tan(math.radians(20))
     u = round(w / 2 + f * 0.45 / 5)
     assert first[h // 2, u][0] > 100 and first[h // 2, u][1] == 0
+
+
+class _Blank:
+    """A renderer that draws black images (no OpenGL needed)."""
+
+    def render(self, state, overlay=None, camera=None):
+        return np.zeros((8, 8, 3), dtype=np.uint8)
+
+    def close(self):
+        pass
+
+
+def _frames_run(folder, seconds: float):
+    from vrsim_cli.loop import run
+    from vrsim_cli.model.frames import FramesSpec
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import parse_scene
+    from vrsim_cli.writers.frames import FramesWriter
+
+    model = compile_model(parse_scene(
+        f"vrsim: 1\nduration: {seconds}\nframe_rate: 100\ndt: 0.01\n"
+        "bodies: [{name: a, mass: 1, velocity: [1, 0, 0]}]\n"))
+    frames = FramesWriter(model, FramesSpec(folder, 1, 8, 8), _Blank())
+    run(model, make_state(model), render=frames)
+    frames.close()
+    return frames.images
+
+
+@pytest.mark.parametrize("seconds", [0.1, 1.0])
+def test_writing_frames_lists_their_folder_a_fixed_number_of_times(tmp_path, seconds):
+    """Stale temporary files are swept once per run, not once per frame: a sweep per frame
+    lists the folder, whose size grows with every frame (quadratic in the frames: 7 % of a
+    500-frame run, minutes for a long one)."""
+    import os
+    from unittest import mock
+
+    folder = tmp_path / "frames"
+    listed = []
+    real = os.listdir
+
+    def counting(path="."):
+        if Path(path) == folder:
+            listed.append(path)
+        return real(path)
+
+    with mock.patch("os.listdir", counting):
+        images = _frames_run(folder, seconds)
+    assert images == round(seconds * 100) + 1
+    assert len(listed) <= 2, len(listed)  # the sweep, and the end's clean-up of old frames
+
+
+def test_frames_sweep_only_the_temporary_files_of_dead_runs(tmp_path):
+    """A frame's temporary file left by a killed run (unlocked, untouched for a minute)
+    goes; a young one (a run writing now) and the user's files stay."""
+    import os
+    import time
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    old = folder / ".frame_000003.png.ab12cd34.partial"
+    young = folder / ".frame_000004.png.zz99yy88.partial"
+    mine = folder / "frame_notes.partial"
+    for path in (old, young, mine):
+        path.write_bytes(b"x")
+    hour_ago = time.time() - 3600
+    os.utime(old, (hour_ago, hour_ago))
+    os.utime(mine, (hour_ago, hour_ago))
+    assert _frames_run(folder, 0.05) == 6
+    assert not old.exists() and young.exists() and mine.exists()

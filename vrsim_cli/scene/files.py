@@ -141,6 +141,8 @@ def _special_hint(path: Path) -> str:
 def is_partial_of(name: str, target_name: str) -> bool:
     """True when `name` is a temporary file vrsim writes before renaming it to
     `target_name` (in the same folder)."""
+    if not (name.startswith(f".{target_name}.") and name.endswith(PARTIAL_SUFFIX)):
+        return False  # most names in a folder: no regular expression needed
     return re.fullmatch(re.escape(f".{target_name}.") + PARTIAL_RANDOM
                         + re.escape(PARTIAL_SUFFIX), name) is not None
 

@@ -60,7 +60,10 @@ class _Stdout:
 class AtomicFile:
     """A binary file that appears at `path` only when `commit()` succeeds."""
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike, sweep_stale: bool = True):
+        """`sweep_stale=False`: the caller removed the folder's stale temporary files
+        itself, once for many files (the frames writer: a sweep per file lists the folder
+        once per frame, quadratic in the number of frames)."""
         self.path = Path(path)
         self.done = False
         self.synced = False
@@ -73,7 +76,8 @@ class AtomicFile:
         if problem is not None:
             raise OutputError(f"cannot write {self.path}: {problem}")
         folder = self.path.parent
-        remove_stale_partials(folder, self.path.name)
+        if sweep_stale:
+            remove_stale_partials(folder, self.path.name)
         try:
             fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=PARTIAL_SUFFIX,
                                        dir=folder)

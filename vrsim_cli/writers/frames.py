@@ -21,6 +21,7 @@ from vrsim_cli.maths.spatial import quat_rotate
 from vrsim_cli.model.frames import FramesSpec
 from vrsim_cli.model.model import Model
 from vrsim_cli.model.state import State
+from vrsim_cli.scene.files import remove_stale_partials
 from vrsim_cli.writers.atomic import AtomicFile
 
 FRAME_NAME = "frame_{:06d}.png"
@@ -85,10 +86,13 @@ class FramesWriter:
         """Draw and write the kept states, finish the video, remove stale frames of an
         earlier run, free the renderer."""
         try:
+            # temporary files of runs that died, once for the folder (not once per frame)
+            remove_stale_partials(self.spec.dir)
             for state, camera in zip(self.states, self.cameras() if self.states else []):
                 image = self.renderer.render(state, self.label(state.t) if self.label else None,
                                              camera=camera)
-                out = AtomicFile(self.spec.dir / FRAME_NAME.format(self.images))
+                out = AtomicFile(self.spec.dir / FRAME_NAME.format(self.images),
+                                 sweep_stale=False)
                 try:
                     out.write(encode_png(image))
                     out.commit()
