@@ -51,13 +51,13 @@ class Recorder:
 
 
 def shots(name: str, tmp_path):
-    """(model, [(state, camera)]) of every image `vrsim run --frames` would draw."""
+    """(model, [(state, camera)]) of every image `vrsim run --frames` would draw: the
+    states the frames writer keeps and the cameras it gives them, as its close() pairs
+    them (without drawing and encoding the images: PNG encoding was a third of this)."""
     model = compile_model(load_scene(SCENARIOS / f"{name}.yaml"))
-    recorder = Recorder()
-    frames = FramesWriter(model, FramesSpec(tmp_path / name, 1, W, H), recorder)
+    frames = FramesWriter(model, FramesSpec(tmp_path / name, 1, W, H), Recorder())
     run(model, make_state(model), render=frames)
-    frames.close()
-    return model, recorder.shots
+    return model, list(zip(frames.states, frames.cameras()))
 
 
 def sizes(model) -> tuple[np.ndarray, np.ndarray]:
@@ -188,3 +188,17 @@ def test_the_projectile_ball_is_followed_at_more_than_10_px(tmp_path):
         assert 0 <= u[0] <= W and 0 <= v[0] <= H
         across.append(2 * focal * inner[0] / d[0])
     assert min(across) > MIN_PX
+
+
+def test_the_frames_writer_draws_its_kept_states_with_these_cameras(tmp_path):
+    """`shots` takes the states and cameras without drawing: close() draws exactly those
+    (here with a renderer that records them, PNGs written)."""
+    model = compile_model(load_scene(SCENARIOS / "projectile.yaml"))
+    recorder = Recorder()
+    frames = FramesWriter(model, FramesSpec(tmp_path / "p", 1, W, H), recorder)
+    run(model, make_state(model), render=frames)
+    expected = list(zip(frames.states, frames.cameras()))
+    frames.close()
+    assert len(recorder.shots) == len(expected) == frames.images > 1
+    assert all(a is s and b == c for (a, b), (s, c) in zip(recorder.shots, expected))
+    assert len(list((tmp_path / "p").glob("frame_*.png"))) == frames.images
