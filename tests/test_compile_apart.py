@@ -85,3 +85,84 @@ def test_a_signal_during_the_first_stepped_compile_is_answered_at_once(tmp_path,
     assert not (tmp_path / "out.csv").exists()
     assert not helpers_using(cache)
     assert not list(cache.glob("src-*/stepped-*.compiled"))  # nothing claims a compile
+
+
+def _start_run(tmp_path, cache: Path, name: str):
+    folder = tmp_path / name
+    folder.mkdir()
+    (folder / "scene.yaml").write_text(SCENE)
+    env = dict(os.environ, VRSIM_CACHE_DIR=str(cache))
+    env.pop("NUMBA_CACHE_DIR", None)
+    env.pop("NUMBA_DISABLE_JIT", None)
+    return subprocess.Popen([sys.executable, "-m", "vrsim_cli", "run", "scene.yaml"],
+                            cwd=folder, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for(condition, seconds: float, what: str):
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.05)
+
+
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs Linux /proc")
+def test_a_second_run_waits_for_the_first_runs_compile_instead_of_compiling_too(tmp_path):
+    """Two runs of a stepped scene on one empty cache (a sweep's workers): one compile
+    helper, not two (each is ~60 s of CPU and ~0.5 GB). The waiting run answers a signal
+    at once; when the compiling run dies (SIGKILL: its lock goes with it), the waiting one
+    takes over the compile."""
+    cache = tmp_path / "empty-cache"
+    first = _start_run(tmp_path, cache, "first")
+    second = third = None
+    try:
+        assert first.stderr.readline().startswith("vrsim: compiling kernels")
+        _wait_for(lambda: helpers_using(cache), 30, "the first run's helper")
+        helper = helpers_using(cache)
+        second = _start_run(tmp_path, cache, "second")
+        assert second.stderr.readline().startswith("vrsim: compiling kernels")
+        time.sleep(2.0)  # the second run is started and past its announcement: waiting
+        assert helpers_using(cache) == helper and second.poll() is None
+        sent = time.monotonic()
+        second.send_signal(signal.SIGINT)
+        out, err = second.communicate(timeout=30)
+        assert second.returncode == 130 and time.monotonic() - sent < 3.0, err
+        assert "interrupted by SIGINT" in err and "Traceback" not in err
+        assert helpers_using(cache) == helper  # the first compile goes on, undisturbed
+
+        third = _start_run(tmp_path, cache, "third")
+        assert third.stderr.readline().startswith("vrsim: compiling kernels")
+        time.sleep(1.0)
+        assert helpers_using(cache) == helper and third.poll() is None
+        first.kill()  # its helper dies with it (PR_SET_PDEATHSIG), and so does its lock
+        first.wait(timeout=30)
+        _wait_for(lambda: helpers_using(cache) and helpers_using(cache) != helper, 10,
+                  "the waiting run's own helper")
+        assert len(helpers_using(cache)) == 1 and third.poll() is None
+    finally:
+        for proc in (first, second, third):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=30)
+    _wait_for(lambda: not helpers_using(cache), 5, "no helper left")
+    assert not list(cache.glob("src-*/stepped-*.compiled"))
+
+
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs Linux /proc")
+def test_a_run_killed_as_its_helper_starts_leaves_no_helper(tmp_path):
+    """Killed while its helper's Python is still starting (before the helper can ask the
+    kernel to kill it with its parent, and before it reads its parent's pid): the helper
+    knows the run's pid from its command line, sees it gone and stops."""
+    cache = tmp_path / "empty-cache"
+    run = _start_run(tmp_path, cache, "run")
+    try:
+        assert run.stderr.readline().startswith("vrsim: compiling kernels")
+        deadline = time.monotonic() + 30
+        while not helpers_using(cache):
+            assert time.monotonic() < deadline
+            time.sleep(0.005)
+    finally:
+        run.kill()
+        run.communicate(timeout=30)
+    _wait_for(lambda: not helpers_using(cache), 3.0, "the helper of a killed run stopped")
+    assert not list(cache.glob("src-*/stepped-*.compiled"))

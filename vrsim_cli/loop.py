@@ -241,10 +241,7 @@ def _compile_apart(integrator: str) -> bool:
     the caller's `held` block acts on the signal). If the helper fails, the run compiles
     for itself, as it would without it."""
     import os
-    import subprocess
-    import sys
 
-    from vrsim_cli import interrupts
     from vrsim_cli.kernels import jit
 
     marker = _compile_marker(integrator)
@@ -252,9 +249,68 @@ def _compile_apart(integrator: str) -> bool:
         return True
     jit.announce_compile()
     started = time.perf_counter()
+    lock = _compile_lock(marker)
+    if lock is False:
+        return False  # a signal came while another run compiled
+    try:
+        if marker.exists():  # compiled by the run we waited for: load it
+            jit.compiled_apart(time.perf_counter() - started)
+            return True
+        return _compile_helper(integrator, started)
+    finally:
+        if lock is not None:
+            os.close(lock)  # closing the file releases its lock
+
+
+def _compile_lock(marker):
+    """Wait for the lock of `marker`'s compile (a file beside it, locked with flock): one
+    run compiles an entry, and other runs that start meanwhile on the same cache (a sweep's
+    workers, parallel test workers) wait for it instead of compiling the same ~150 kernels
+    side by side (~60 s of CPU and ~0.5 GB each). Returns the open locked file descriptor;
+    None when the entry appeared meanwhile or no lock can be taken (no flock: Windows; a
+    cache folder that refuses the file), so the run goes on as without a lock; False when
+    a signal came (`interrupts.pending`). The kernel releases the lock when its holder dies,
+    however it dies: a killed run leaves no lock behind."""
+    import os
+
+    from vrsim_cli import interrupts
+
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        return None
+    try:
+        fd = os.open(marker.with_name(f".{marker.name}.lock"), os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:
+        return None
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return fd
+        except BlockingIOError:
+            pass
+        except OSError:
+            os.close(fd)
+            return None
+        if marker.exists() or interrupts.pending() is not None:
+            os.close(fd)
+            return None if marker.exists() else False
+        time.sleep(0.05)
+
+
+def _compile_helper(integrator: str, started: float) -> bool:
+    """`_compile_apart`'s helper process, waited for; False when a signal came."""
+    import os
+    import subprocess
+    import sys
+
+    from vrsim_cli import interrupts
+    from vrsim_cli.kernels import jit
+
     proc = subprocess.Popen(  # it inherits the cache folder (jit exports its base)
         [sys.executable, "-c", "import sys; from vrsim_cli.loop import compile_main; "
-         "sys.exit(compile_main(sys.argv[1]))", integrator],
+         "sys.exit(compile_main(sys.argv[1], int(sys.argv[2])))", integrator,
+         str(os.getpid())],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL, start_new_session=True)  # a terminal's ^C is ours
     try:
@@ -273,15 +329,17 @@ def _compile_apart(integrator: str) -> bool:
     return True
 
 
-def compile_main(integrator: str) -> int:
+def compile_main(integrator: str, parent: int | None = None) -> int:
     """The helper process of `_compile_apart`: run the small scene, then write the marker
-    (atomically). Exit 0 when the entry is compiled and cached."""
+    (atomically). Exit 0 when the entry is compiled and cached. `parent`: the run's pid,
+    as the run passed it (a run killed while Python started here is already gone when
+    this reads its parent, and would not be noticed)."""
     import gc
     import os
     import sys
 
     gc.disable()  # as `vrsim` starts: jit then compiles with its collector thresholds
-    parent = os.getppid()
+    parent = os.getppid() if parent is None else parent
     # a run killed by SIGKILL cannot kill its helper: on Linux the kernel does it when the
     # run dies (PR_SET_PDEATHSIG), elsewhere the helper notices within 0.2 s (a thread)
     watched = False
