@@ -153,3 +153,86 @@ bodies:
     assert s.body_angvel[1, 2] == pytest.approx(wz, abs=1e-9 * max(1.0, v0))
     assert abs(s.body_vel[1, 0]) <= 1e-9 * v0 and abs(s.body_vel[1, 2]) <= 1e-9 * v0
     assert np.abs(s.body_angvel[1, :2]).max() <= 1e-9 * v0
+
+
+def _face_down(rng):
+    """A box of random size, mass and turn about the vertical lying on a random face:
+    (mass kg, world inertia (3, 3), the face's corners (4, 3) m from the centre)."""
+    from scipy.spatial.transform import Rotation
+
+    size = rng.uniform(0.05, 1.0, 3)
+    m = float(rng.uniform(0.1, 10.0))
+    axis = int(rng.integers(3))
+    down = np.zeros(3)
+    down[axis] = rng.choice([-1.0, 1.0])
+    # a random rotation, then the shortest turn taking the face's normal down
+    R = Rotation.random(random_state=int(rng.integers(2 ** 31))).as_matrix()
+    d, t = R @ down, np.array([0.0, -1.0, 0.0])
+    R = Rotation.align_vectors([t], [d])[0].as_matrix() @ R
+    a, b, c = size
+    I = R @ np.diag([b * b + c * c, a * a + c * c, a * a + b * b]) @ R.T * m / 12.0
+    others = [i for i in range(3) if i != axis]
+    corners = []
+    for s1 in (-1.0, 1.0):
+        for s2 in (-1.0, 1.0):
+            p = down * size / 2
+            p[others[0]], p[others[1]] = s1 * size[others[0]] / 2, s2 * size[others[1]] / 2
+            corners.append(R @ p)
+    return m, I, np.array(corners)
+
+
+def _impact(m, I, points, vel, angvel, eps, mu):
+    """(v, w) after `solver.resolve_impacts` of a box at the origin on a fixed ground
+    (normal +y) at `points`."""
+    from vrsim_cli.stages.collision import solver
+
+    k = len(points)
+    bodies = solver.Bodies(np.array([0.0, 1.0 / m]), np.stack([np.zeros((3, 3)),
+                                                               np.linalg.inv(I)]),
+                           np.stack([np.zeros(3), vel]), np.stack([np.zeros(3), angvel]),
+                           np.zeros((2, 3)))
+    c = solver.prepare(bodies, np.zeros(k, np.int64), np.ones(k, np.int64), points,
+                       np.repeat([[0.0, 1.0, 0.0]], k, axis=0), np.zeros(k), np.full(k, eps),
+                       np.full(k, mu))
+    solver.resolve_impacts(bodies, c, 0.0)
+    return bodies.vel[1].copy(), bodies.angvel[1].copy()
+
+
+def test_points_up_to_two_tolerances_out_of_plane_impact_like_a_face():
+    """The corners of a landing face are reported up to two collision tolerances apart
+    along the normal (an impact is located when a landing corner is the tolerance below a
+    resting one, which may itself be the tolerance deep). A 2 mm change of the points
+    must change the impact's outcome by little: the velocities after (v and w L, L the
+    face's longest corner arm) differ from those of the same impact at the exact face by
+    at most 20 (delta / L) (|v| + |w| L), delta the largest offset.
+
+    Independent truth: continuity of the impact in its geometry (the same solve at the
+    exact face is the reference; the friction of the offset points must not vanish).
+    1000 seeded cases: random boxes on random faces, landing at 0.5-5 m/s, sliding at up
+    to 2 m/s, spinning at up to 2 rad/s, eps in {0, 0.5, 1}, mu in {0, 0.3, 1, 3}, offsets
+    uniform in [0, 2 mm]. Measured: at most 7.6 (delta / L) over 3000 cases; before
+    friction acted at the points levelled onto their mean plane (`solver._levelled`), up
+    to 540 (delta / L), 86 % of the speed: the friction of a cube landing flat after
+    tipping over with mu = 1 came out 0 and it slid on at 0.6 m/s."""
+    tolerance = 1e-3
+    rng = np.random.default_rng(2026)
+    worst = []
+    for trial in range(1000):
+        m, I, corners = _face_down(rng)
+        u = rng.uniform(0.5, 5.0)
+        slide = rng.normal(size=2) * rng.uniform(0.0, 2.0)
+        vel = np.array([slide[0], -u, slide[1]])
+        angvel = rng.normal(size=3) * rng.uniform(0.0, 2.0)
+        eps = float(rng.choice([0.0, 0.5, 1.0]))
+        mu = float(rng.choice([0.0, 0.3, 1.0, 3.0]))
+        delta = rng.uniform(0.0, 2 * tolerance, 4)
+        lowered = corners - np.outer(delta, [0.0, 1.0, 0.0])
+        L = float(np.linalg.norm(corners, axis=1).max())
+        v0, w0 = _impact(m, I, corners, vel, angvel, eps, mu)
+        v1, w1 = _impact(m, I, lowered, vel, angvel, eps, mu)
+        change = max(np.abs(v1 - v0).max(), np.abs(w1 - w0).max() * L)
+        scale = np.linalg.norm(vel) + np.linalg.norm(angvel) * L
+        if change > 20.0 * delta.max() / L * scale:
+            worst.append((trial, eps, mu, change / scale / (delta.max() / L)))
+    assert not worst, f"{len(worst)} of 1000 impacts jumped (trial, eps, mu, ratio): " \
+                      f"{worst[:10]}"
