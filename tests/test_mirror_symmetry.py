@@ -148,6 +148,12 @@ KNOWN = {
     "multiplies the round-off asymmetry by ~100 (5e-15 at t = 0.42 s, 1e-10 at 0.47 s); "
     "at t = 0.59 s they rest edge on edge in the mirror plane with two coincident "
     "3-point manifolds, where the Coulomb solve is not unique and 1e-9 decides (0.05 m/s)",
+    ("pair", "located", 2): "two capsules come to rest against each other on the ground: "
+    "at t = 0.55 s, after a landing located 2.88 ms into the step (impulses of the twins "
+    "equal to 4e-8 N s), the step's resting solve of the two ground pairs and the capsule "
+    "pair, in Gauss-Seidel order (docs/collision-response.md, Known limits), gives the "
+    "twins 0.0454 and 0.0448 N s (since the located landing of a second point, 2026-12-04; "
+    "before, the scene took another path)",
     ("pair", "stepped", 4): STEPPED_ORDER,
     ("pair", "stepped", 7): STEPPED_ORDER,
     ("pair", "stepped", 10): STEPPED_ORDER,

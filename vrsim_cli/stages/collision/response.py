@@ -245,6 +245,7 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
     c1 = detect(model, end) if c1 is None else c1
     pairs = []
     fast, leaving, still = set(), set(), set()
+    closing = {}  # m/s: a touching pair's fastest approach at the start (>= 0)
     if touching:
         c0 = detect(model, s) if c0 is None else c0
         keep = np.flatnonzero(_modes(model, c0) != NONE)
@@ -258,6 +259,7 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
                 1.0 + speed[c0.body_a[keep]] + speed[c0.body_b[keep]]))
             for k, v, u in zip(keep.tolist(), vn.tolist(), slow.tolist()):
                 pair = (int(c0.body_a[k]), int(c0.body_b[k]))
+                closing[pair] = max(closing.get(pair, 0.0), -v)
                 if v < -u:
                     fast.add(pair)
                 elif v > u:
@@ -326,14 +328,28 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
     noise = ARM_ROUNDOFF * (1.0 + float(np.abs(s.body_pos[np.concatenate([
         [p[0] for p in pairs], [p[1] for p in pairs]])]).max()))
     arm = np.where(back, np.where(turns, np.maximum(sep0, 0.0) + noise, 0.0), -np.inf)
-    bracket = _march(separations, sep0, arm, toi, h, mu, cm.tolerance)
+    # Until then, such a pair is watched for sinking: another of its points (a capsule's
+    # other end, a box's next corner) may reach the obstacle without the gap ever
+    # opening, since the least gap is the touching point's ~0 until the other one is
+    # lower. A resting point sinks, from its start, by at most v0 t + a t^2 / 2 (v0 its
+    # approach at the start, a the two bodies' mean free-flight acceleration: gravity
+    # drops it 5.4 mm in a step of 1/30 s); a gap that falls to the tolerance below that
+    # has hit with another point (a capsule at 661 m/s went through a 1 cm plate so).
+    # The level is a function of time alone, so that mirror-image pairs keep mirror-image
+    # events (a level that followed each pair's own sinking moved on round-off).
+    sink = np.where(back, np.minimum(sep0, 0.0) - cm.tolerance, -np.inf)
+    v0 = np.array([max(closing.get(p, 0.0), 0.0) for p in pairs])
+    accel = np.linalg.norm(end.body_vel - s.body_vel, axis=1) / h  # m/s^2, mean
+    pace = accel[[p[0] for p in pairs]] + accel[[p[1] for p in pairs]]
+    bracket = _march(separations, sep0, arm, toi, h, mu, cm.tolerance, (sink, v0, pace))
     if bracket is None:
         return None
-    sel, lo, g_lo, hi, g_hi = bracket
-    return _root(lambda t: float(separations(t, sel).min()), lo, g_lo, hi, g_hi, h)
+    sel, lo, g_lo, hi, g_hi, level = bracket
+    return _root(lambda t: float((separations(t, sel) - level(t)).min()), lo, g_lo, hi, g_hi,
+                 h)
 
 
-def _march(gaps, d0, arm, toi, h, mu, tol):
+def _march(gaps, d0, arm, toi, h, mu, tol, watch=None):
     """Conservative advancement (Mirtich 1996) along the integrator's path to the first
     overlap of a candidate pair. From t, where every pair taking part is apart (gaps
     d_i > 0), pair i cannot touch before t + max(d_i, tol) / mu_i (mu_i:
@@ -342,29 +358,58 @@ def _march(gaps, d0, arm, toi, h, mu, tol):
     detection's time of impact (found on the step's chord; 0 when it found none); the
     march steps to the earliest of these. A pair takes part once its gap exceeds arm_i
     (-inf: from the start; 0: a pair touching at 0 and leaving, once apart; its gap at 0:
-    a touching pair that neither approached nor left). Returns (pairs taking part, lo,
-    G(lo) > 0, hi, G(hi) <= 0), G their least gap, or None (no overlap within h)."""
+    a touching pair that neither approached nor left). Until then, with watch = (sink,
+    v0, pace) ((k,) m, m/s, m/s^2), a pair with a finite sink_i takes part when its gap
+    falls to sink_i - v0_i t - pace_i t^2 / 2 (below what a resting point can sink to).
+    Returns (pairs taking part, lo, E(lo) > 0, hi, E(hi) <= 0, level), E the least of
+    their gaps less level(t) (their levels at t: 0 for an armed pair), or None (no
+    overlap within h)."""
+    sink, v0, pace = watch if watch is not None else (np.full(len(d0), -np.inf),
+                                                       np.zeros(len(d0)), np.zeros(len(d0)))
     t, d = 0.0, d0
     armed = d0 > arm
+
+    def levels(t, idx):
+        return np.where(armed[idx], 0.0, sink[idx] - v0[idx] * t - 0.5 * pace[idx] * t * t)
+
+    def event(t_next, d, d_next, idx):
+        """The pairs idx that take part in an event at t_next ((k,) bool: the armed ones
+        and the sunk ones, if any pair hit) and their levels (a function of time)."""
+        hit = d_next - levels(t_next, idx) <= 0.0
+        if not hit.any():
+            return None, None
+        take = armed[idx] | hit
+        chosen = idx[take]
+        fixed = armed[chosen].copy()
+        return take, lambda t: np.where(fixed, 0.0, sink[chosen] - v0[chosen] * t -
+                                        0.5 * pace[chosen] * t * t)
+
+    every = np.arange(len(d0))
     for _ in range(MARCH_STEPS):
         with np.errstate(divide="ignore"):
             step = np.where(mu > 0.0, np.maximum(np.where(armed, d, 0.0), tol) / mu, np.inf)
         t_next = min(float(np.maximum(t + step, toi).min()), h)
         d_next = gaps(t_next)
-        if (armed & (d_next <= 0.0)).any():
-            sel = np.flatnonzero(armed)
-            return (sel, t, float(d[sel].min()), t_next, float(d_next[sel].min()))
+        take, level = event(t_next, d, d_next, every)
+        if take is not None:
+            sel = np.flatnonzero(take)
+            return (sel, t, float((d[sel] - level(t)).min()), t_next,
+                    float((d_next[sel] - level(t_next)).min()), level)
         armed |= d_next > arm
         t, d = t_next, d_next
         if t >= h:
             return None
     # very slow progress (a pair skimming past within the tolerance): sample the rest
-    sel = np.flatnonzero(armed)
+    watched = np.flatnonzero(armed | np.isfinite(sink))
+    d = d[watched]
     for j in range(1, LEAVE_SAMPLES + 1):
         t_next = t + (h - t) * j / LEAVE_SAMPLES
-        d_next = gaps(t_next, sel)
-        if (d_next <= 0.0).any():
-            return (sel, t, float(d[sel].min()), t_next, float(d_next.min()))
+        d_next = gaps(t_next, watched)
+        take, level = event(t_next, d, d_next, watched)
+        if take is not None:
+            return (watched[take], t, float((d[take] - level(t)).min()), t_next,
+                    float((d_next[take] - level(t_next)).min()), level)
+        t, d = t_next, d_next
     return None
 
 
