@@ -52,6 +52,10 @@ def energy_message(model: Model, gain: float, bound: float) -> str:
     """What the energy guard says when it trips (docs/dynamics.md, "Energy guard")."""
     what = (f"grew by {gain:.4g} J in a scene that conserves it" if gain > 0.0 else
             f"fell by {-gain:.4g} J in a scene without damping or impacts, which conserves it")
+    hint = ("; in a scene with contacts, a body pivoting on a resting edge or end also "
+            "gains energy from position correction, a known limit (docs/collision-"
+            "response.md, Known limits): a smaller dt shrinks it"
+            if gain > 0.0 and model.response is not None else "")
     return (f"the energy {what} (bound {bound:.4g} J for {model.integrator}, order "
             f"{ORDER[model.integrator]}, at dt = {model.dt:.4g} s): the integration blew up "
-            f"or is too coarse; try a smaller dt or another integrator")
+            f"or is too coarse; try a smaller dt or another integrator{hint}")
