@@ -274,3 +274,38 @@ def test_the_energy_guard_names_the_pivot_limit_in_scenes_with_contacts():
     assert "pivoting on a resting edge" in energy_message(with_contacts, 1e-3, 1e-4)
     assert "pivoting" not in energy_message(without, 1e-3, 1e-4)
     assert "pivoting" not in energy_message(with_contacts, -1e-3, 1e-4)  # a loss
+
+
+ROLLING_HOPS = ("at dt = 1/30 s (not at 25 ms or less) a rolling sphere's resting contact "
+                "is taken for an impact every few steps: it hops at up to eps g dt "
+                "(0.16 m/s at eps 0.5, 0.33 at eps 1); same on main; cause not found yet "
+                "(g dt = 0.33 m/s is above rest_speed, 0.14 m/s)")
+
+
+@pytest.mark.parametrize("dt", [0.01, 1 / 60, 1 / 30])
+@pytest.mark.parametrize("eps", [0.0, 0.5, 1.0])
+def test_a_rolling_sphere_makes_no_impacts(dt, eps, request):
+    """A sphere rolling without slipping on a plane (r 0.2 m, 1 m/s) stays on it: no
+    impact events, no vertical velocity. Truth: rolling on a plane is resting contact."""
+    from conftest import simulate
+
+    if dt > 0.02 and eps > 0.0:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=ROLLING_HOPS))
+    _, states, _ = simulate(f"""
+vrsim: 1
+duration: 1.0
+frame_rate: {1 / dt!r}
+dt: {dt!r}
+integrator: rk4
+gravity: [0, -{G}, 0]
+collision: {{}}
+bodies:
+  - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
+     material: {{restitution: {eps}, friction: 0.6}}}}
+  - {{name: ball, mass: 1.0, position: [0, 0.2, 0], velocity: [1.0, 0, 0],
+     angular_velocity: [0, 0, -5.0], shape: {{type: sphere, radius: 0.2}},
+     material: {{restitution: {eps}, friction: 0.6}}}}
+""")
+    for s in states:
+        assert s.contacts is None or np.isnan(s.contacts.toi).all(), f"an impact at {s.t}"
+        assert abs(s.body_vel[1, 1]) <= 1e-9, f"v_y = {s.body_vel[1, 1]:.3g} at {s.t}"
