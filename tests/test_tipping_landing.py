@@ -226,6 +226,23 @@ def test_a_tipping_body_is_not_stopped_by_the_energy_guard(seed):
     simulate(draw(seed)[0])
 
 
+def on_ground(dt, eps, mu):
+    """YAML of a 1 s rk4 scene sampled every step, up to its ground plane's entry; the
+    caller appends its bodies."""
+    return f"""
+vrsim: 1
+duration: 1.0
+frame_rate: {1 / dt!r}
+dt: {dt!r}
+integrator: rk4
+gravity: [0, -{G}, 0]
+collision: {{}}
+bodies:
+  - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
+     material: {{restitution: {eps}, friction: {mu}}}}}
+"""
+
+
 @pytest.mark.parametrize("dt", [0.01, 1 / 60, 1 / 30])
 @pytest.mark.parametrize("eps", [0.0, 0.5, 1.0])
 def test_a_box_resting_on_a_face_makes_no_impacts(dt, eps):
@@ -240,18 +257,7 @@ def test_a_box_resting_on_a_face_makes_no_impacts(dt, eps):
     rng = np.random.default_rng(int(1000 * dt) + int(10 * eps))
     a, b, c = (float(x) for x in rng.uniform(0.2, 0.8, 3))
     yaw = float(rng.uniform(0.0, 90.0))
-    _, states, _ = simulate(f"""
-vrsim: 1
-duration: 1.0
-frame_rate: {1 / dt!r}
-dt: {dt!r}
-integrator: rk4
-gravity: [0, -{G}, 0]
-collision: {{}}
-bodies:
-  - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
-     material: {{restitution: {eps}, friction: 0.5}}}}
-  - {{name: box, mass: 2.0, position: [0, {b / 2!r}, 0], euler_deg: [0, {yaw!r}, 0],
+    _, states, _ = simulate(on_ground(dt, eps, 0.5) + f"""  - {{name: box, mass: 2.0, position: [0, {b / 2!r}, 0], euler_deg: [0, {yaw!r}, 0],
      shape: {{type: box, size: [{a!r}, {b!r}, {c!r}]}},
      material: {{restitution: {eps}, friction: 0.5}}}}
 """)
@@ -291,18 +297,7 @@ def test_a_rolling_sphere_makes_no_impacts(dt, eps, request):
 
     if dt > 0.02 and eps > 0.0:
         request.applymarker(pytest.mark.xfail(strict=True, reason=ROLLING_HOPS))
-    _, states, _ = simulate(f"""
-vrsim: 1
-duration: 1.0
-frame_rate: {1 / dt!r}
-dt: {dt!r}
-integrator: rk4
-gravity: [0, -{G}, 0]
-collision: {{}}
-bodies:
-  - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
-     material: {{restitution: {eps}, friction: 0.6}}}}
-  - {{name: ball, mass: 1.0, position: [0, 0.2, 0], velocity: [1.0, 0, 0],
+    _, states, _ = simulate(on_ground(dt, eps, 0.6) + f"""  - {{name: ball, mass: 1.0, position: [0, 0.2, 0], velocity: [1.0, 0, 0],
      angular_velocity: [0, 0, -5.0], shape: {{type: sphere, radius: 0.2}},
      material: {{restitution: {eps}, friction: 0.6}}}}
 """)
