@@ -43,7 +43,8 @@ import numpy as np
 from vrsim_cli.maths.products import dot, matmul
 
 from vrsim_cli.maths.rotation import cross, exp_so3, quat_from_matrix
-from vrsim_cli.model.collision import BOX, CAPSULE
+from vrsim_cli.maths.spatial import quat_conjugate, quat_rotate
+from vrsim_cli.model.collision import BOX, CAPSULE, CYLINDER, SPHERE
 from vrsim_cli.model.model import BODY_DYNAMIC
 from vrsim_cli.model.response import IMPULSE, NONE, SLIDE, STOP
 from vrsim_cli.stages.collision import solver
@@ -301,8 +302,18 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
     ia, ib = _pair_geoms(model, np.array([p[0] for p in pairs]), np.array([p[1] for p in
                                                                             pairs]))
 
+    memo = {0.0: s}  # the march and the root ask for the same times twice (gap, level)
+
+    def state_at(tau):
+        if tau not in memo:
+            if len(memo) > 2:
+                memo.clear()
+                memo[0.0] = s
+            memo[tau] = advance(model, s, tau)
+        return memo[tau]
+
     def gaps(tau, sel=slice(None), separation=False):
-        st = s if tau == 0.0 else advance(model, s, tau)
+        st = state_at(tau)
         return _signed_gaps(cm, place(cm, st.body_pos, st.body_quat), ia[sel], ib[sel],
                             separation)
 
@@ -313,7 +324,11 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
     back = np.array([p in leaving or p in turning for p in pairs])
     if (d0[~back] <= 0.0).any():
         return 0.0
-    if not swept_toi and (d0 > 0.0).all():
+    # The exact bounce: every pair apart at 0, some overlapping at h, none swept through.
+    # (Not for a touching pair that neither approached nor left, with a gap at 0 that is
+    # position correction's 1e-17 m: its resting point sinking under gravity, or a push,
+    # would be found as an "impact" every step; `_march` watches it.)
+    if not swept_toi and (d0 > 0.0).all() and not (back & (d0 <= cm.tolerance)).any():
         g_hi = float(gaps(h).min())
         if g_hi <= 0.0:
             return _root(lambda t: float(gaps(t).min()), 0.0, float(d0.min()), h, g_hi, h)
@@ -331,22 +346,88 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
     # Until then, such a pair is watched for sinking: another of its points (a capsule's
     # other end, a box's next corner) may reach the obstacle without the gap ever
     # opening, since the least gap is the touching point's ~0 until the other one is
-    # lower. A resting point sinks, from its start, by at most v0 t + a t^2 / 2 (v0 its
-    # approach at the start, a the two bodies' mean free-flight acceleration: gravity
-    # drops it 5.4 mm in a step of 1/30 s); a gap that falls to the tolerance below that
-    # has hit with another point (a capsule at 661 m/s went through a 1 cm plate so).
-    # The level is a function of time alone, so that mirror-image pairs keep mirror-image
-    # events (a level that followed each pair's own sinking moved on round-off).
+    # lower. A gap that falls to the tolerance below where its resting points can be has
+    # hit with another point (a capsule at 661 m/s went through a 1 cm plate so).
     sink = np.where(back, np.minimum(sep0, 0.0) - cm.tolerance, -np.inf)
-    v0 = np.array([max(closing.get(p, 0.0), 0.0) for p in pairs])
-    accel = np.linalg.norm(end.body_vel - s.body_vel, axis=1) / h  # m/s^2, mean
-    pace = accel[[p[0] for p in pairs]] + accel[[p[1] for p in pairs]]
-    bracket = _march(separations, sep0, arm, toi, h, mu, cm.tolerance, (sink, v0, pace))
+    fall = _resting_fall(model, s, end, h, pairs, closing, c0 if touching else None,
+                         state_at)
+    bracket = _march(separations, sep0, arm, toi, h, mu, cm.tolerance, (sink, fall))
     if bracket is None:
         return None
     sel, lo, g_lo, hi, g_hi, level = bracket
     return _root(lambda t: float((separations(t, sel) - level(t)).min()), lo, g_lo, hi, g_hi,
                  h)
+
+
+def _resting_fall(model, s, end, h, pairs, closing, c0, state_at):
+    """fall(t) -> (len(pairs),) m: how far each touching pair's resting points can sink
+    by t after s, the larger of two bounds. Kinematic: v0 t + a t^2 / 2 (v0 the pair's
+    approach at s, a the two bodies' mean acceleration over the step: gravity drops a
+    point 5.4 mm in 1/30 s); it holds for a point that rolls away (a sphere's contact
+    point is not a material point). Material: the sinking of the body points at the
+    contacts of s (c0) along the integrator's own path, which includes what the
+    kinematic bound misses: symplectic Euler drops a point a t^2, not a t^2 / 2, and a
+    torque or an off-centre force swings a pressed edge down. Both depend on the pair
+    alone, so mirror-image pairs keep mirror-image events."""
+    v0 = np.array([max(closing.get(p, 0.0), 0.0) for p in pairs])
+    accel = np.linalg.norm(end.body_vel - s.body_vel, axis=1) / h  # m/s^2, mean
+    pace = accel[[p[0] for p in pairs]] + accel[[p[1] for p in pairs]]
+    rows = np.zeros(0, np.int64)
+    if c0 is not None and len(c0):
+        index = {p: i for i, p in enumerate(pairs)}
+        of = np.array([index.get((a, b), -1) for a, b in zip(c0.body_a.tolist(),
+                                                              c0.body_b.tolist())])
+        rows = np.flatnonzero((of >= 0) & (_modes(model, c0) != NONE))
+    if not len(rows):
+        return lambda t: v0 * t + 0.5 * pace * t * t
+    pair_of = of[rows]
+    a, b = c0.body_a[rows], c0.body_b[rows]
+    back_a, back_b = quat_conjugate(s.body_quat[a]), quat_conjugate(s.body_quat[b])
+    local_a = _curvature_centres(model, a, quat_rotate(back_a, c0.point[rows] -
+                                                       s.body_pos[a]))
+    local_b = _curvature_centres(model, b, quat_rotate(back_b, c0.point[rows] -
+                                                       s.body_pos[b]))
+    local_n = quat_rotate(back_a, c0.normal[rows])  # (the normal turns with A)
+
+    def apart(st):  # (rows,) m: the distance along n between the points' centres
+        qa, qb = st.body_quat[a], st.body_quat[b]
+        return ((st.body_pos[b] + quat_rotate(qb, local_b) - st.body_pos[a] -
+                 quat_rotate(qa, local_a)) * quat_rotate(qa, local_n)).sum(1)
+    start = apart(s)  # (the centres stay their radii from the surfaces: they cancel)
+
+    def fall(t):
+        kinematic = v0 * t + 0.5 * pace * t * t
+        rise = apart(state_at(t)) - start
+        material = np.zeros(len(pairs))
+        np.maximum.at(material, pair_of, -rise)
+        return np.maximum(kinematic, material)
+    return fall
+
+
+def _curvature_centres(model, body, local):
+    """(k, 3) m body frame: the centres of curvature of the bodies' surfaces at contact
+    points `local` (body frame). On a sphere its centre, on a
+    capsule's or a cylinder's side the nearest point of its axis: the contact point of a
+    rolling body is not a body point (it rises by (v t)^2 / 2 r as the body rolls on),
+    the centre is, and stays r from the surface. Elsewhere (a corner, an edge, a flat
+    face, a mesh) the contact point itself."""
+    cm = model.collision
+    geom = _pair_geoms(model, body, body)[0]
+    out = local.copy()
+    kind = cm.geom_type[geom]
+    for k in np.flatnonzero((kind == SPHERE) | (kind == CAPSULE) | (kind == CYLINDER)):
+        g = int(geom[k])
+        centre = cm.geom_local_pos[g]
+        if kind[k] == SPHERE:
+            out[k] = centre
+            continue
+        axis = quat_rotate(cm.geom_local_quat[g], np.array([0.0, 1.0, 0.0]))
+        half = float(cm.geom_half[g, 1])
+        along = float(dot(local[k] - centre, axis))
+        if kind[k] == CYLINDER and abs(along) >= half:
+            continue  # on a cap's face or rim: flat, or an edge
+        out[k] = centre + min(max(along, -half), half) * axis
+    return out
 
 
 def _march(gaps, d0, arm, toi, h, mu, tol, watch=None):
@@ -359,18 +440,24 @@ def _march(gaps, d0, arm, toi, h, mu, tol, watch=None):
     march steps to the earliest of these. A pair takes part once its gap exceeds arm_i
     (-inf: from the start; 0: a pair touching at 0 and leaving, once apart; its gap at 0:
     a touching pair that neither approached nor left). Until then, with watch = (sink,
-    v0, pace) ((k,) m, m/s, m/s^2), a pair with a finite sink_i takes part when its gap
-    falls to sink_i - v0_i t - pace_i t^2 / 2 (below what a resting point can sink to).
+    fall) ((k,) m; fall(t) -> (k,) m, `_resting_fall`), a pair with a finite sink_i takes
+    part when its gap falls to sink_i - fall(t)_i (below where its resting points are).
     Returns (pairs taking part, lo, E(lo) > 0, hi, E(hi) <= 0, level), E the least of
     their gaps less level(t) (their levels at t: 0 for an armed pair), or None (no
     overlap within h)."""
-    sink, v0, pace = watch if watch is not None else (np.full(len(d0), -np.inf),
-                                                       np.zeros(len(d0)), np.zeros(len(d0)))
+    sink, fall = watch if watch is not None else (np.full(len(d0), -np.inf),
+                                                   lambda t: np.zeros(len(d0)))
     t, d = 0.0, d0
     armed = d0 > arm
+    watching = np.isfinite(sink)
+
+    def below(t, idx):  # sink - fall(t), -inf for unwatched pairs (fall not evaluated)
+        if not watching[idx].any():
+            return np.full(len(idx), -np.inf)
+        return np.where(watching[idx], sink[idx] - fall(t)[idx], -np.inf)
 
     def levels(t, idx):
-        return np.where(armed[idx], 0.0, sink[idx] - v0[idx] * t - 0.5 * pace[idx] * t * t)
+        return np.where(armed[idx], 0.0, below(t, idx))
 
     def event(t_next, d, d_next, idx):
         """The pairs idx that take part in an event at t_next ((k,) bool: the armed ones
@@ -381,8 +468,7 @@ def _march(gaps, d0, arm, toi, h, mu, tol, watch=None):
         take = armed[idx] | hit
         chosen = idx[take]
         fixed = armed[chosen].copy()
-        return take, lambda t: np.where(fixed, 0.0, sink[chosen] - v0[chosen] * t -
-                                        0.5 * pace[chosen] * t * t)
+        return take, lambda t: np.where(fixed, 0.0, below(t, chosen))
 
     every = np.arange(len(d0))
     for _ in range(MARCH_STEPS):
