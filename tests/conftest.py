@@ -315,3 +315,20 @@ def simulate(text: str):
     rec = Steps()
     result = run(model, make_state(model), rec)
     return model, rec.states, result.state
+
+
+def on_ground(dt, eps, mu, integrator="rk4", duration=1.0, g=9.81):
+    """YAML of a scene sampled every step, up to its ground plane's entry (restitution
+    eps, friction mu); the caller appends its bodies."""
+    return f"""
+vrsim: 1
+duration: {duration!r}
+frame_rate: {1 / dt!r}
+dt: {dt!r}
+integrator: {integrator}
+gravity: [0, -{g!r}, 0]
+collision: {{}}
+bodies:
+  - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
+     material: {{restitution: {eps}, friction: {mu}}}}}
+"""
