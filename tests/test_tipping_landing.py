@@ -205,10 +205,9 @@ def test_a_tipping_body_gains_no_energy(seed):
 # impulse then takes (a_n dt)^2 m_eff / 2 of kinetic energy away, and position
 # correction lifts the body by the depth, adding m g a_n dt^2 / 2 of potential energy:
 # a net gain of a_n dt^2 (m g - m_eff a_n) / 2 per step wherever the contact's effective
-# mass m_eff is below m (a body turning about the point), as it is for a pivot. The fix
-# is to give resting contacts half their impulse before the free flight and half after
-# (RATTLE-like: the point then ends the step on the surface, with nothing to lift), with
-# friction in both halves so that sticking and rolling keep their cones; not done yet.
+# mass m_eff is below m (a body turning about the point), as it is for a pivot. Two
+# RATTLE-like fixes were tried and reverted (docs/collision-response.md, Known limits:
+# the position impulse must act along the contact's gradient at the step's start).
 GUARD_STOPS = {0, 1, 4, 5, 20}
 
 
