@@ -144,10 +144,6 @@ STEPPED_ORDER = ("stepped mode: kernels/stepped.py solves a pair's points by Gau
                  "friction converges: the first asymmetric step's impulses differ by 1e-9 "
                  "(single 4, an edge landing) to 2e-3 N s (single 8), pair 10 in `rest`")
 KNOWN = {
-    ("pair", "located", 4): "two boxes meet vertex to vertex with mu = 0.8: each impact "
-    "multiplies the round-off asymmetry by ~100 (5e-15 at t = 0.42 s, 1e-10 at 0.47 s); "
-    "at t = 0.59 s they rest edge on edge in the mirror plane with two coincident "
-    "3-point manifolds, where the Coulomb solve is not unique and 1e-9 decides (0.05 m/s)",
     ("pair", "located", 2): "two capsules come to rest against each other on the ground: "
     "at t = 0.55 s, after a landing located 2.88 ms into the step (impulses of the twins "
     "equal to 4e-8 N s), the step's resting solve of the two ground pairs and the capsule "

@@ -236,3 +236,99 @@ def test_points_up_to_two_tolerances_out_of_plane_impact_like_a_face():
             worst.append((trial, eps, mu, change / scale / (delta.max() / L)))
     assert not worst, f"{len(worst)} of 1000 impacts jumped (trial, eps, mu, ratio): " \
                       f"{worst[:10]}"
+
+
+def _edge_landing(rng):
+    """A box lying on a random face (`_face_down`), turning about one edge of that face
+    (the pivot, at rest) so that the opposite edge lands: (m, I, the face's corners (4, 3)
+    from the centre, pivot (2,) and landing (2,) corner indices, omega (3,) rad/s)."""
+    m, I, corners = _face_down(rng)
+    pairs = [(0, 1), (2, 3), (0, 2), (1, 3)]  # the face's edges (corners s1, s2 = +-1)
+    pivot = pairs[int(rng.integers(4))]
+    landing = tuple(i for i in range(4) if i not in pivot)
+    axis = corners[pivot[1]] - corners[pivot[0]]
+    axis /= np.linalg.norm(axis)
+    # the sense that brings the landing edge down: (w x (p_land - p_pivot)).y < 0
+    arm = corners[landing[0]] - corners[pivot[0]]
+    sense = -1.0 if np.cross(axis, arm)[1] > 0 else 1.0
+    omega = sense * axis * float(np.exp(rng.uniform(np.log(0.1), np.log(20.0))))
+    return m, I, corners, pivot, landing, omega
+
+
+@pytest.mark.parametrize("pivoting", [True, False], ids=["from-a-pivot", "in-flight"])
+@pytest.mark.parametrize("seed", range(40))
+def test_a_box_landing_on_an_edge_with_friction_matches_the_planar_impact(seed, pivoting):
+    """A box lands on an edge of one of its faces, in planar motion (turning about an
+    axis along the edge, moving across it), with friction. `from-a-pivot`: it pivots on
+    the opposite edge of the face and lands flat (the landing of
+    `tests/test_tipping_landing.py`, in the instant of the impact: both edges touch, the
+    pivot's corners at rest); `in-flight`: it falls turning and only the landing edge
+    touches. The closed form is that of one planar impact at the landing edge, solved
+    here: the impulse P (normal and across the edge, none along it) makes the landing
+    edge's velocity (0, eps v_n) when it sticks (|P_t| <= mu P_n), (free, eps v_n) with
+    P_t = 0 when mu = 0; a pivot edge then leaves (its normal velocity >= 0: no impulse
+    there, as the LCP's complementarity demands; cases where it would not are redrawn).
+    For eps = 0 and sticking it is Housner's rocking block (1963): the angular momentum
+    about the landing edge is kept and the box turns about it. Tolerance: 1e-9 of the
+    pre-impact speed scale (round-off of the solve). On the tree before
+    `solver._sticking_round` 15 of the 40 pivot cases failed and 15 of the 40 in flight
+    (friction after the normal impulses: with eps = 0.5 a box lost its whole bounce,
+    3.19 J -> 0.003 J where the planar impact leaves 0.80 J, and with eps = 0 one left the
+    ground at 1.1 m/s)."""
+    rng = np.random.default_rng(7000 + seed + 100 * (not pivoting))
+    eps = float((0.0, 0.3, 0.5, 1.0)[seed % 4])
+    sticking = seed % 8 < 4
+    n = np.array([0.0, 1.0, 0.0])
+    while True:
+        m, I, corners, pivot, landing, omega = _edge_landing(rng)
+        p_pivot = 0.5 * (corners[pivot[0]] + corners[pivot[1]])
+        p_land = 0.5 * (corners[landing[0]] + corners[landing[1]])
+        t = (p_land - p_pivot) - n * ((p_land - p_pivot) @ n)
+        t /= np.linalg.norm(t)  # along the face, across the edges
+        if pivoting:
+            vel = np.cross(omega, -p_pivot)  # the centre (origin) turning about the pivot
+        else:  # any planar motion: turning about the edge's direction, moving across it
+            omega = omega * float(rng.uniform(-2.0, 2.0))
+            vel = (n * float(rng.uniform(-5.0, 0.0)) + t * float(rng.uniform(-3.0, 3.0)))
+        Iinv = np.linalg.inv(I)
+
+        def point_velocity_change(P, at):
+            dv, dw = P / m, Iinv @ np.cross(at, P)
+            return dv + np.cross(dw, at), dv, dw
+
+        u = vel + np.cross(omega, p_land)  # landing edge velocity (its mid-point)
+        vn = float(u @ n)
+        if vn >= -1e-3:
+            continue  # not landing
+        if sticking:  # solve the 2 x 2 for (P_n, P_t): landing velocity (.t, .n) = (0, -eps vn)
+            K = np.array([[point_velocity_change(d1, p_land)[0] @ d2 for d1 in (n, t)]
+                          for d2 in (n, t)])
+            P_n, P_t = np.linalg.solve(K, np.array([-eps * vn - vn, -(u @ t)]))
+            mu = 2.0 * abs(P_t) / P_n + 0.1  # enough to stick
+        else:
+            P_n = (-eps * vn - vn) / (point_velocity_change(n, p_land)[0] @ n)
+            P_t, mu = 0.0, 0.0
+        P = P_n * n + P_t * t
+        _, dv, dw = point_velocity_change(P, p_land)
+        v_after, w_after = vel + dv, omega + dw
+        pivot_after = (v_after + np.cross(w_after, p_pivot)) @ n
+        if P_n > 0.0 and (not pivoting or pivot_after >= 1e-6 * abs(vn)):
+            break
+    v, w = _impact(m, I, corners if pivoting else corners[list(landing)], vel, omega, eps,
+                   mu)
+    scale = abs(vn) + 1e-300
+
+    def energy(v, w):
+        return 0.5 * m * float(v @ v) + 0.5 * float(w @ I @ w)
+
+    if sticking and energy(v_after, w_after) > energy(vel, omega) * (1.0 + 1e-12):
+        # Newton's law with sticking adds energy here (Kane's paradox; seen with eps = 1):
+        # no law of impact may, so the truth left is that none is added, the landing
+        # edge sticks, and it does not sink back (restitution scaled down, not dropped)
+        u_after = v + np.cross(w, p_land)
+        assert energy(v, w) <= energy(vel, omega) * (1.0 + 1e-12)
+        assert abs(u_after @ t) <= 1e-9 * scale and u_after @ n >= -1e-9 * scale
+        return
+    assert np.abs(v - v_after).max() <= 1e-9 * scale, (v, v_after)
+    assert np.abs(w - w_after).max() * max(np.abs(corners).max(), 1e-3) <= 1e-9 * scale, \
+        (w, w_after)
