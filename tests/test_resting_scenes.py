@@ -112,13 +112,19 @@ def test_a_body_the_contacts_can_hold_stays_at_rest(integrator, dt, eps):
 @pytest.mark.parametrize("eps", [0.5, 1.0])
 @pytest.mark.parametrize("dt", DTS, ids=["10ms", "60Hz", "30Hz"])
 @pytest.mark.parametrize("integrator", INTEGRATORS)
-@pytest.mark.parametrize("kind", ["sphere", "capsule"])
-def test_a_rolling_body_makes_no_impacts(kind, integrator, dt, eps):
-    """Truth 2: a sphere, or a capsule on its side, rolling at 0.5-2 m/s along a random
-    horizontal direction (radius 0.05-0.4 m), for 0.5 s. (eps 0 cannot hop: no
-    restitution.)"""
+@pytest.mark.parametrize("kind", ["sphere", "capsule", "cylinder"])
+def test_a_rolling_body_makes_no_impacts(kind, integrator, dt, eps, request):
+    """Truth 2: a sphere, or a capsule or a cylinder on its side, rolling at 0.5-2 m/s
+    along a random horizontal direction (radius 0.05-0.4 m), for 0.5 s. (eps 0 cannot
+    hop: no restitution.) A cylinder touches the plane at its caps' rims."""
+    if (kind, integrator, dt) == ("cylinder", "euler", 0.01):
+        request.applymarker(pytest.mark.xfail(strict=True, reason=(
+            "a cylinder rolling on its rims under euler at dt 10 ms moves vertically at "
+            "5e-5 m/s at t = 0.08 s (no impact event; 1/60 and 1/30 s pass; on 8ad2045 11 "
+            "of these 30 cases failed, on dfa9486 8)")))
     index = INTEGRATORS.index(integrator) * 6 + DTS.index(dt) * 2 + int(eps == 1.0)
-    rng = np.random.default_rng(1000 + index + 100 * (kind == "capsule"))
+    rng = np.random.default_rng(1000 + index + 100 * ["sphere", "capsule",
+                                                      "cylinder"].index(kind))
     r = float(rng.uniform(0.05, 0.4))
     speed = float(rng.uniform(0.5, 2.0))
     heading = float(rng.uniform(0.0, 2 * math.pi))
@@ -126,7 +132,7 @@ def test_a_rolling_body_makes_no_impacts(kind, integrator, dt, eps):
     spin = np.cross([0.0, 1.0, 0.0], d) * (-speed / r)  # omega x (-r y) = v d
     yaw = math.degrees(-heading)  # capsule: its axis (local y, turned to local z) across d
     shape = (f"{{type: sphere, radius: {r!r}}}" if kind == "sphere" else
-             f"{{type: capsule, radius: {r!r}, length: {float(rng.uniform(0.2, 1.0))!r}}}")
+             f"{{type: {kind}, radius: {r!r}, length: {float(rng.uniform(0.2, 1.0))!r}}}")
     pose = "" if kind == "sphere" else f"euler_deg: [90, {yaw!r}, 0], "
     _, states, _ = simulate(on_ground(dt, eps, 0.6, integrator, 0.5) + f"""  - {{name: roller, mass: 1.0, position: [0, {r!r}, 0], {pose}velocity: {(speed * d).tolist()},
      angular_velocity: {spin.tolist()}, shape: {shape},
@@ -135,3 +141,52 @@ def test_a_rolling_body_makes_no_impacts(kind, integrator, dt, eps):
     for s in states:
         assert s.contacts is None or np.isnan(s.contacts.toi).all(), f"an impact at {s.t}"
         assert abs(s.body_vel[1, 1]) <= 1e-9, f"v_y = {s.body_vel[1, 1]:.3g} at {s.t}"
+
+
+# Known failures, strict (the mark must go the day one passes): the presses too stiff for
+# the step. The free flight sinks the pressed corner by (its angular acceleration, up to
+# 1e3 rad/s^2 here) x r dt^2 / 2; each located event stops it for an instant only, so at
+# 13-50 times the weight and dt >= 1/60 s (or 30-37 times at 10 ms) the box ends steps
+# lifted 5-17 mm or tilted, and at 3 times the weight (verlet, 10 ms, a 0.12 m wide box)
+# it creeps at 1 cm/s. On 8ad2045 9 of these 15 failed, on dfa9486 10.
+PRESS_KNOWN = {("symplectic-euler", 1 / 30), ("verlet", 0.01), ("rk4", 1 / 60),
+               ("rk4", 1 / 30), ("dopri5", 0.01), ("dopri5", 1 / 60)}
+
+
+@pytest.mark.parametrize("dt", DTS, ids=["10ms", "60Hz", "30Hz"])
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+def test_a_box_pressed_down_over_a_corner_stays_on_the_ground(integrator, dt, request):
+    """A box (random size, 0.5-5 kg, mu 0.8) pressed down at a top corner, straight above
+    the bottom corner below it, with 2-100 times its weight (a force fixed in the body).
+    Truth: the line of action passes through the support, so the box is in equilibrium
+    and stays where it is. Checked here: it stays on the ground, at its height to 3
+    collision tolerances (the tolerance, and SINK_SLACK = 2 more that a pressed corner may
+    sink within a step before the step is cut there), not tilted by more than those
+    3 tolerances over its width, and at rest at the end (<= 1e-6 m/s, rad/s). Its creep
+    along the ground is a known limit (up to 4 mm in 1 s at 10 times its weight and
+    dt 1/30 s, docs/collision-response.md). With the pressed corner's own sinking taken
+    as where a resting point may be (the first version of `_resting_fall`), it sank
+    15 cm in a step of 1/30 s at 10 times its weight and position correction threw the
+    box 2 m up, spinning at 825 rad/s (the same on dfa9486)."""
+    if (integrator, dt) in PRESS_KNOWN:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=(
+            "a press too stiff for the step: see PRESS_KNOWN")))
+    index = INTEGRATORS.index(integrator) * 3 + DTS.index(dt)
+    rng = np.random.default_rng(3000 + index)
+    a, b, c = (float(x) for x in rng.uniform(0.1, 0.6, 3))
+    m = float(rng.uniform(0.5, 5.0))
+    press = float(np.exp(rng.uniform(np.log(2.0), np.log(100.0)))) * m * G
+    sx, sz = (float(x) for x in rng.choice([-1.0, 1.0], 2))
+    _, states, final = simulate(on_ground(dt, 0.0, 0.8, integrator) + f"""  - {{name: box, mass: {m!r}, position: [0, {b / 2!r}, 0],
+     shape: {{type: box, size: [{a!r}, {b!r}, {c!r}]}}, material: {{friction: 0.8}},
+     forces: [{{force: [0, {-press!r}, 0], point: [{sx * a / 2!r}, {b / 2!r}, {sz * c / 2!r}],
+               frame: body}}]}}
+""")
+    slack = 3 * TOLERANCE
+    for s in states:
+        assert abs(s.body_pos[1, 1] - b / 2) <= slack, (s.t, s.body_pos[1])
+        w, x, y, z = s.body_quat[1]
+        tilt = 2.0 * math.atan2(math.hypot(x, z), abs(w))  # about horizontal axes
+        assert tilt * max(a, c) <= slack, (s.t, tilt)
+    assert np.abs(final.body_vel[1]).max() <= 1e-6 and np.abs(final.body_angvel[1]).max() <= 1e-6
+
