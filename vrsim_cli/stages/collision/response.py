@@ -63,7 +63,6 @@ MARCH_STEPS = 1024  # conservative-advancement steps along the path before sampl
 LEAVE_SAMPLES = 16  # samples of the rest of the step after MARCH_STEPS
 ARM_ROUNDOFF = 1e-12  # of the coordinates: a turning pair's gap must open beyond this
 WARM_RADIUS = 0.02  # m: a contact within this of last step's (same pair) inherits its impulse
-SINK_SLACK = 2.0  # tolerances a pressed resting point may sink beyond its free fall
 # the share of a constant acceleration a that the integrator's drift over t carries as
 # a t^2 (others: 1/2, the exact parabola; euler's drift carries none, and 1/2 bounds it)
 DRIFT_SHARE = {"symplectic-euler": 1.0}
@@ -383,17 +382,17 @@ def _resting_fall(model, s, end, h, pairs, closing, c0, state_at):
     point is not a body point). Material: the sinking of the body points at the
     contacts of s (c0) along the integrator's own path, which includes what the
     kinematic bound misses: a torque or an off-centre force swings a pressed edge down.
-    The material bound counts up to SINK_SLACK tolerances beyond the kinematic one:
-    deeper, the pressed point is taken as having hit (the event cuts the step there),
-    since the step's end would find it arbitrarily deep (a corner pressed with 10 times
-    the box's weight sank 15 cm in a step of 1/30 s, and position correction launched the
-    box at 825 rad/s). Both bounds depend on the pair alone, so mirror-image pairs keep
+    (Unlimited: a pressed point that sinks far in a step, a corner pressed with 10 times
+    a box's weight at dt 1/30 s, is found deep at the step's end, and the box may be
+    thrown; capping the material bound at 2 tolerances beyond the kinematic one cut
+    those steps with events instead, whose friction let pressed boxes slide 0.46 m in
+    1 s at dt 10 ms where they had stood still. docs/collision-response.md, Known
+    limits.) Both bounds depend on the pair alone, so mirror-image pairs keep
     mirror-image events."""
     v0 = np.array([max(closing.get(p, 0.0), 0.0) for p in pairs])
     accel = np.linalg.norm(end.body_vel - s.body_vel, axis=1) / h  # m/s^2, mean
     pace = accel[[p[0] for p in pairs]] + accel[[p[1] for p in pairs]]
     share = DRIFT_SHARE.get(model.integrator, 0.5)
-    slack = SINK_SLACK * model.collision.tolerance
     rows = np.zeros(0, np.int64)
     if c0 is not None and len(c0):
         index = {p: i for i, p in enumerate(pairs)}
@@ -422,7 +421,7 @@ def _resting_fall(model, s, end, h, pairs, closing, c0, state_at):
         rise = apart(state_at(t)) - start
         material = np.zeros(len(pairs))
         np.maximum.at(material, pair_of, -rise)
-        return np.maximum(kinematic, np.minimum(material, kinematic + slack))
+        return np.maximum(kinematic, material)
     return fall
 
 
@@ -431,9 +430,10 @@ def _curvature_centres(model, body, local):
     points `local` (body frame). On a sphere its centre, on a capsule's or a cylinder's
     side the nearest point of its axis: the contact point of a
     rolling body is not a body point (it rises by (v t)^2 / 2 r as the body rolls on),
-    the centre is, and stays r from the surface. A cylinder lying on a plane touches it
-    at its caps' rims, which are on its side. Elsewhere (a corner, an edge, a flat face,
-    the inside of a cap, a mesh) the contact point itself."""
+    the centre is, and stays r from the surface. Elsewhere (a corner, an edge, a flat
+    face, a cylinder's rims, a mesh) the contact point itself. (A cylinder lying on a
+    plane touches it at its rims: under symplectic Euler the kinematic bound, a t^2,
+    covers its rolling.)"""
     cm = model.collision
     geom = _pair_geoms(model, body, body)[0]
     out = local.copy()
@@ -447,12 +447,10 @@ def _curvature_centres(model, body, local):
         axis = quat_rotate(cm.geom_local_quat[g], np.array([0.0, 1.0, 0.0]))
         half = float(cm.geom_half[g, 1])
         along = float(dot(local[k] - centre, axis))
-        nearest = centre + min(max(along, -half), half) * axis
-        if kind[k] == CYLINDER and abs(along) >= half and float(np.linalg.norm(
-                local[k] - nearest)) < cm.geom_radius[g] - 2.0 * cm.tolerance:
-            continue  # inside a cap's face: flat (a rim point, to the contact's depth
-            # within the rim, is on the side too)
-        out[k] = nearest
+        if kind[k] == CYLINDER and abs(along) >= half:
+            continue  # on a cap's face or rim: flat, or an edge (a standing cylinder's
+            # rim is its support: tracked as the cap's centre, a pushed one sank "below")
+        out[k] = centre + min(max(along, -half), half) * axis
     return out
 
 
