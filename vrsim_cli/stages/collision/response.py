@@ -428,12 +428,11 @@ def _resting_fall(model, s, end, h, pairs, closing, c0, state_at):
 def _curvature_centres(model, body, local):
     """(k, 3) m body frame: the centres of curvature of the bodies' surfaces at contact
     points `local` (body frame). On a sphere its centre, on a capsule's or a cylinder's
-    side the nearest point of its axis: the contact point of a
-    rolling body is not a body point (it rises by (v t)^2 / 2 r as the body rolls on),
-    the centre is, and stays r from the surface. Elsewhere (a corner, an edge, a flat
-    face, a cylinder's rims, a mesh) the contact point itself. (A cylinder lying on a
-    plane touches it at its rims: under symplectic Euler the kinematic bound, a t^2,
-    covers its rolling.)"""
+    side the nearest point of its axis: the contact point of a rolling body is not a
+    body point (it rises by (v t)^2 / 2 r as the body rolls on), the centre is, and
+    stays r from the surface. Elsewhere (a corner, an edge, a flat face, a cylinder's
+    rims, a mesh) the contact point itself. (A cylinder lying on a plane touches it at
+    its rims: the kinematic bound covers its rolling.)"""
     cm = model.collision
     geom = _pair_geoms(model, body, body)[0]
     out = local.copy()
