@@ -208,7 +208,8 @@ def resolve_impacts(bodies: Bodies, c: ContactSet, rest_speed: float) -> np.ndar
             break
         eps = np.where((-vn[rows] < rest_speed) | (count[rows] >= MAX_ELASTIC_PASSES), 0.0,
                        c.restitution[rows])
-        lam[rows] += _impact_round(bodies, c.take(rows), -eps * vn[rows])
+        lam[rows] += _impact_round(bodies, c.take(rows), -eps * vn[rows],
+                                   stick=not count[rows].any())
         count[rows] += 1
     return np.einsum("kj,kjd->kd", lam, c.dirs)
 
@@ -280,7 +281,7 @@ def _lcp(W, v, target) -> np.ndarray:
     return np.maximum(lam, 0.0)
 
 
-def _impact_round(bodies: Bodies, c: ContactSet, target) -> np.ndarray:
+def _impact_round(bodies: Bodies, c: ContactSet, target, stick=True) -> np.ndarray:
     """One round of an impact: normal impulses (k,) of all rows together so that each
     row's normal velocity becomes >= target (its restitution target) with complementarity,
     then friction: the tangential impulses that stop the slip of all rows together,
@@ -297,15 +298,17 @@ def _impact_round(bodies: Bodies, c: ContactSet, target) -> np.ndarray:
     Friction acts at the points levelled (`_levelled`): points of one pair and normal
     moved along the normal onto their mean plane.
 
-    First, where friction can act, the round is tried as one coupled solve in which the
-    rubbing points stick (`_sticking_round`); the normal-then-friction passes below are
-    for the rounds where that solution does not exist (a point would slide or pull) or
-    would add energy."""
+    First, in an impact's first round (`stick`: every point new to the impact) and where
+    friction can act, the round is tried as one coupled solve in which the rubbing
+    points stick (`_sticking_round`); the normal-then-friction passes below are for the
+    rounds where that solution does not exist (a point would slide or pull) and for the
+    later rounds of a chain or a pile (there it was tried 25 000 times in a 24-box pile
+    and failed 99 % of the time, and the run took 1.5 times as long)."""
     k = len(c)
     lam = np.zeros((k, 3))
     vn = velocity_along(bodies, c, 0)
     lam[:, 0] = _lcp(_delassus(c, [0]), vn, target)
-    if (c.friction * lam[:, 0] > 0.0).any():
+    if stick and (c.friction * lam[:, 0] > 0.0).any():
         stuck = _sticking_round(bodies, c, vn, target, lam[:, 0])
         if stuck is not None:
             return stuck
