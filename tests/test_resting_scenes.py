@@ -164,8 +164,8 @@ def test_a_box_pressed_down_over_a_corner_stays_on_the_ground(integrator, dt, re
     the bottom corner below it, with 2-100 times its weight (a force fixed in the body).
     Truth: the line of action passes through the support, so the box is in equilibrium
     and stays where it is. Checked here: it stays on the ground, at its height to 3
-    collision tolerances (the tolerance, and 2 more that a pressed corner may
-    sink within a step before position correction), not tilted by more than those
+    collision tolerances (resting contacts are kept within one; a pressed corner is
+    corrected out of some more; a thrown box rises metres), not tilted by more than those
     3 tolerances over its width, and at rest at the end (<= 1e-6 m/s, rad/s). Presses
     too stiff for the step fail (PRESS_KNOWN, docs/collision-response.md, Known
     limits)."""
