@@ -55,6 +55,7 @@ from vrsim_cli.stages.collision.continuous import (approach_bound, pair_distance
 from vrsim_cli.stages.collision.narrowphase import (box_box_separation,
                                                      box_capsule_separation, narrow_phase)
 from vrsim_cli.stages.collision.shapes import aabbs, place
+from vrsim_cli.stages.dynamics.integrators import DRIFT_SHARE
 
 MAX_EVENTS = 64  # impacts located per step; later ones in the step go to the resting solver
 ROOT_ITERATIONS = 200
@@ -63,9 +64,6 @@ MARCH_STEPS = 1024  # conservative-advancement steps along the path before sampl
 LEAVE_SAMPLES = 16  # samples of the rest of the step after MARCH_STEPS
 ARM_ROUNDOFF = 1e-12  # of the coordinates: a turning pair's gap must open beyond this
 WARM_RADIUS = 0.02  # m: a contact within this of last step's (same pair) inherits its impulse
-# the share of a constant acceleration a that the integrator's drift over t carries as
-# a t^2 (others: 1/2, the exact parabola; euler's drift carries none, and 1/2 bounds it)
-DRIFT_SHARE = {"symplectic-euler": 1.0}
 
 
 def detect(model, state) -> Contacts:
@@ -168,9 +166,8 @@ def _approach_then(model, last, state, c: Contacts, rows) -> np.ndarray:
     centres in `state`. (Arms from their centres in `last` moved a rolling sphere's
     contact ahead by v h: its spin then read as an approach of omega v h, 0.17 m/s at
     1 m/s and dt 1/30 s, above rest_speed, and it hopped with restitution.)"""
-    then = bodies_of(model, last)
-    then.pos = state.body_pos
-    return _approach(then, c, rows)
+    then = solver.Bodies(None, None, last.body_vel, last.body_angvel, state.body_pos)
+    return _approach(then, c, rows)  # (reads velocities and centres only)
 
 
 def _slide(bodies, c: Contacts, rows) -> None:
@@ -392,7 +389,7 @@ def _resting_fall(model, s, end, h, pairs, closing, c0, state_at):
     v0 = np.array([max(closing.get(p, 0.0), 0.0) for p in pairs])
     accel = np.linalg.norm(end.body_vel - s.body_vel, axis=1) / h  # m/s^2, mean
     pace = accel[[p[0] for p in pairs]] + accel[[p[1] for p in pairs]]
-    share = DRIFT_SHARE.get(model.integrator, 0.5)
+    share = max(DRIFT_SHARE[model.integrator], 0.5)  # (euler's 0: bounded by 1/2)
     rows = np.zeros(0, np.int64)
     if c0 is not None and len(c0):
         index = {p: i for i, p in enumerate(pairs)}
@@ -603,12 +600,13 @@ def resting(model, start, state, last=None, c=None):
         # euler, which moves with the start velocity, keeps its gap and ends the step
         # approaching at g dt, above rest_speed from dt = 14 ms; left out here, it fell
         # for a step, bounced next step and spun up on the corners' round-off (0.8 rad/s).
+        then = _approach_then(model, last, state, c, rows)
         closing = (c.depth[rows] < 0.0) & (_approach(bodies, c, rows) < -rm.rest_speed) & \
-            (_approach_then(model, last, state, c, rows) < -rm.rest_speed)
-        rows = rows[~closing]
+            (then < -rm.rest_speed)
+        rows, then = rows[~closing], then[~closing]
     dtheta = np.zeros((model.n_body, 3))
     if len(rows):
-        impulse[rows] += _missed_impacts(model, last, state, bodies, c, rows)
+        impulse[rows] += _missed_impacts(model, then, bodies, c, rows)
         sub = Contacts(*(getattr(c, f)[rows] for f in (
             "body_a", "body_b", "point", "normal", "depth", "toi")))
         cs = _contact_set(model, bodies, c, rows)
@@ -632,12 +630,13 @@ def resting(model, start, state, last=None, c=None):
     return new, c, impulse
 
 
-def _missed_impacts(model, last, state, bodies, c: Contacts, rows) -> np.ndarray:
+def _missed_impacts(model, then, bodies, c: Contacts, rows) -> np.ndarray:
     """Impacts the event search did not locate, applied at the step's end with their
     restitution (`solver.resolve_impacts`) instead of plastically by the resting solver:
     contacts that penetrate at the step's end and approach faster than rest_speed both
-    now and at `last` (the step's start or its last impact; a body resting under gravity
-    approaches at g dt at the end but not at the start). Seen: a box whose second corner
+    now and at the step's start or its last impact (`then`, (len(rows),) m/s,
+    `_approach_then`; a body resting under gravity approaches at g dt at the end but not
+    at the start). Seen: a box whose second corner
     reaches a wall in the step of the first corner's bounce lost 8 % of its energy in
     that step. Returns the impulses (len(rows), 3) N s on B; changes `bodies`. (The
     time of impact is lost: the body bounces up to a step late, penetrating; position
@@ -645,7 +644,7 @@ def _missed_impacts(model, last, state, bodies, c: Contacts, rows) -> np.ndarray
     rest = model.response.rest_speed
     out = np.zeros((len(rows), 3))
     fast = (c.depth[rows] >= 0.0) & (_approach(bodies, c, rows) < -rest) & \
-        (_approach_then(model, last, state, c, rows) < -rest)
+        (then < -rest)
     if fast.any():
         # with every touching contact of the bodies concerned: an impulse at one corner
         # may drive another into the wall, which then takes its own (the impact rounds)
