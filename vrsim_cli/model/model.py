@@ -38,6 +38,9 @@ from vrsim_cli.scene.spec import Scene
 BODY_DYNAMIC, BODY_KINEMATIC, BODY_STATIC = 0, 1, 2
 BODY_TYPES = {"dynamic": BODY_DYNAMIC, "kinematic": BODY_KINEMATIC, "static": BODY_STATIC}
 INTEGRATORS = ("euler", "symplectic-euler", "rk4", "verlet", "dopri5")
+# k in x1 = x0 + dt v0 + k a dt^2: the share of a constant acceleration a in one step's
+# drift (stages/dynamics/integrators.py); stages other than dynamics read it here
+DRIFT_SHARE = {"euler": 0.0, "symplectic-euler": 1.0, "rk4": 0.5, "verlet": 0.5, "dopri5": 0.5}
 OUTPUT_FORMATS = ("mcap", "csv", "tum")
 
 DEFAULT_FRAME_RATE = 60.0  # Hz

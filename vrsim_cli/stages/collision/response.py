@@ -45,7 +45,7 @@ from vrsim_cli.maths.products import dot, matmul
 from vrsim_cli.maths.rotation import cross, exp_so3, quat_from_matrix
 from vrsim_cli.maths.spatial import quat_conjugate, quat_rotate
 from vrsim_cli.model.collision import BOX, CAPSULE, CYLINDER, SPHERE
-from vrsim_cli.model.model import BODY_DYNAMIC
+from vrsim_cli.model.model import BODY_DYNAMIC, DRIFT_SHARE
 from vrsim_cli.model.response import IMPULSE, NONE, SLIDE, STOP
 from vrsim_cli.stages.collision import solver
 from vrsim_cli.stages.collision.broadphase import broad_phase
@@ -55,7 +55,6 @@ from vrsim_cli.stages.collision.continuous import (approach_bound, pair_distance
 from vrsim_cli.stages.collision.narrowphase import (box_box_separation,
                                                      box_capsule_separation, narrow_phase)
 from vrsim_cli.stages.collision.shapes import aabbs, place
-from vrsim_cli.stages.dynamics.integrators import DRIFT_SHARE
 
 MAX_EVENTS = 64  # impacts located per step; later ones in the step go to the resting solver
 ROOT_ITERATIONS = 200

@@ -22,6 +22,4 @@ docs/dynamics.md.
 
 INTEGRATORS = ("euler", "symplectic-euler", "rk4", "verlet", "dopri5")
 ORDER = {"euler": 1, "symplectic-euler": 1, "rk4": 4, "verlet": 2, "dopri5": 5}
-# k in x1 = x0 + dt v0 + k a dt^2: the share of a constant acceleration a in one step's drift
-DRIFT_SHARE = {"euler": 0.0, "symplectic-euler": 1.0, "rk4": 0.5, "verlet": 0.5, "dopri5": 0.5}
 ADAPTIVE = ("dopri5",)
