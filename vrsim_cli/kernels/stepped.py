@@ -1185,8 +1185,12 @@ def expand_pairs(gf, lo, hi, pad, step, grown, K, k0, k):
         x[q] = lo[bounded[q], 0]
     by_x = np.argsort(x, kind="mergesort")
     xs = np.empty(nb)
+    box = np.empty((nb, 6))  # the boxes in that order, for the quick rejection below
     for q in range(nb):
         xs[q] = x[by_x[q]]
+        for c in range(3):
+            box[q, c] = lo[bounded[by_x[q]], c]
+            box[q, 3 + c] = hi[bounded[by_x[q]], c]
     near = np.empty(n_geom, np.int64)
     for i in range(n_geom):
         if gf[i, kc.G_EMIT] > step or not grown[int(gf[i, kc.G_BODY])]:
@@ -1201,14 +1205,30 @@ def expand_pairs(gf, lo, hi, pad, step, grown, K, k0, k):
             # covers the rounding of the widths)
             first = lo[i, 0] - width - 1e-9 * (width + abs(lo[i, 0]))
             a, b = np.searchsorted(xs, first, "left"), np.searchsorted(xs, hi[i, 0], "right")
+            # the test is pure, so test first and sort only the pairs it keeps (sorting
+            # every geom of the window, for each grown geom in each round, was most of a
+            # step of 1000 spheres while they still flew)
             cnt = 0
             for q in range(a, b):
-                near[cnt] = bounded[by_x[q]]
-                cnt += 1
+                # boxes apart along an axis fail `_late_pair`'s overlap test: rejected
+                # here from contiguous rows first (most of the window)
+                if (box[q, 3] < lo[i, 0] or box[q, 1] > hi[i, 1] or box[q, 4] < lo[i, 1]
+                        or box[q, 2] > hi[i, 2] or box[q, 5] < lo[i, 2]):
+                    continue
+                j = bounded[by_x[q]]
+                if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
+                    near[cnt] = j
+                    cnt += 1
             for q in range(no):
-                near[cnt] = others[q]
-                cnt += 1
+                j = others[q]
+                if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
+                    near[cnt] = j
+                    cnt += 1
             near[:cnt].sort()
+            for e in range(cnt):
+                P = kc._push_pair(P, m, i, near[e])
+                m += 1
+            continue
         for e in range(cnt):
             j = near[e]
             if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
