@@ -142,7 +142,9 @@ STEPPED_ORDER = ("stepped mode: kernels/stepped.py solves a pair's points by Gau
                  "sweeps in list order (`impact_pair`, `rest`), and a body's mirror corners "
                  "(or its mirror body's) come in another order; the sweeps stop before "
                  "friction converges: the first asymmetric step's impulses differ by 1e-9 "
-                 "(single 4, an edge landing) to 2e-3 N s (single 8), pair 10 in `rest`")
+                 "(single 4, an edge landing) to 2e-3 N s (single 8), pair 10 in `rest` "
+                 "(measured with 100 impact sweeps; taken to 5000, pair 13 passes and these "
+                 "still do not)")
 KNOWN = {
     ("pair", "located", 2): "two capsules come to rest against each other on the ground: "
     "at t = 0.55 s, after a landing located 2.88 ms into the step (impulses of the twins "
@@ -153,7 +155,6 @@ KNOWN = {
     ("pair", "stepped", 4): STEPPED_ORDER,
     ("pair", "stepped", 7): STEPPED_ORDER,
     ("pair", "stepped", 10): STEPPED_ORDER,
-    ("pair", "stepped", 13): STEPPED_ORDER,
     ("single", "stepped", 4): STEPPED_ORDER,
     ("single", "stepped", 6): STEPPED_ORDER,
     ("single", "stepped", 8): STEPPED_ORDER,
