@@ -158,6 +158,13 @@ bodies:
 def _face_down(rng):
     """A box of random size, mass and turn about the vertical lying on a random face:
     (mass kg, world inertia (3, 3), the face's corners (4, 3) m from the centre)."""
+    size, m, R, corners = _face_down_pose(rng)
+    return m, _box_inertia(size, m, R), corners
+
+
+def _face_down_pose(rng):
+    """`_face_down`'s box as (size (3,) m, mass kg, rotation R (3, 3), the face's corners
+    (4, 3) m from the centre)."""
     from scipy.spatial.transform import Rotation
 
     size = rng.uniform(0.05, 1.0, 3)
@@ -169,8 +176,6 @@ def _face_down(rng):
     R = Rotation.random(random_state=int(rng.integers(2 ** 31))).as_matrix()
     d, t = R @ down, np.array([0.0, -1.0, 0.0])
     R = Rotation.align_vectors([t], [d])[0].as_matrix() @ R
-    a, b, c = size
-    I = R @ np.diag([b * b + c * c, a * a + c * c, a * a + b * b]) @ R.T * m / 12.0
     others = [i for i in range(3) if i != axis]
     corners = []
     for s1 in (-1.0, 1.0):
@@ -178,7 +183,13 @@ def _face_down(rng):
             p = down * size / 2
             p[others[0]], p[others[1]] = s1 * size[others[0]] / 2, s2 * size[others[1]] / 2
             corners.append(R @ p)
-    return m, I, np.array(corners)
+    return size, m, R, np.array(corners)
+
+
+def _box_inertia(size, m, R):
+    """World inertia (3, 3) of a box of size (3,) m and mass m kg turned by R."""
+    a, b, c = size
+    return R @ np.diag([b * b + c * c, a * a + c * c, a * a + b * b]) @ R.T * m / 12.0
 
 
 def _impact(m, I, points, vel, angvel, eps, mu):
@@ -335,29 +346,15 @@ def test_a_box_landing_on_an_edge_with_friction_matches_the_planar_impact(seed, 
 
 
 def _landing_scene(rng, pivoting):
-    """A box landing on an edge of a face, in planar motion, drawn as in
-    `_edge_landing` but as a whole scene: (scene YAML, m, world inertia, corners of the
-    face (4, 3) from the centre, pivot and landing corner indices, v, omega, eps, mu,
-    sticking). `pivoting`: the face lies on the ground (both edges touch, the pivot's at
-    rest); else the box is tilted by 0.05-0.6 rad about the landing edge, which alone
-    touches. No gravity: the step's only velocity change is the impact."""
+    """A box about to land on an edge of a face, in planar motion, drawn as in
+    `_edge_landing` but posed for a whole scene: (R, size, mass, world inertia, the
+    face's corners (4, 3) from the centre, pivot and landing corner indices, omega
+    (3,) rad/s about the edge, landing edge down). `pivoting`: the face lies on the
+    ground (both edges touch); else the box is turned by 0.05-0.6 rad about the edge's
+    direction so the landing edge alone touches."""
     from scipy.spatial.transform import Rotation
 
-    size = rng.uniform(0.05, 1.0, 3)
-    m = float(rng.uniform(0.1, 10.0))
-    axis = int(rng.integers(3))
-    down = np.zeros(3)
-    down[axis] = rng.choice([-1.0, 1.0])
-    R = Rotation.random(random_state=int(rng.integers(2 ** 31))).as_matrix()
-    R = Rotation.align_vectors([[0.0, -1.0, 0.0]], [R @ down])[0].as_matrix() @ R
-    others = [i for i in range(3) if i != axis]
-    corners = []
-    for s1 in (-1.0, 1.0):
-        for s2 in (-1.0, 1.0):
-            p = down * size / 2
-            p[others[0]], p[others[1]] = s1 * size[others[0]] / 2, s2 * size[others[1]] / 2
-            corners.append(R @ p)
-    corners = np.array(corners)
+    size, m, R, corners = _face_down_pose(rng)
     pivot = [(0, 1), (2, 3), (0, 2), (1, 3)][int(rng.integers(4))]
     landing = tuple(i for i in range(4) if i not in pivot)
     edge = corners[landing[1]] - corners[landing[0]]
@@ -367,8 +364,7 @@ def _landing_scene(rng, pivoting):
         sense = 1.0 if np.cross(edge, across)[1] > 0 else -1.0
         tilt = Rotation.from_rotvec(sense * float(rng.uniform(0.05, 0.6)) * edge).as_matrix()
         corners, R = corners @ tilt.T, tilt @ R
-    a, b, c = size
-    I = R @ np.diag([b * b + c * c, a * a + c * c, a * a + b * b]) @ R.T * m / 12.0
+    I = _box_inertia(size, m, R)
     w0 = float(np.exp(rng.uniform(np.log(0.1), np.log(20.0))))
     omega = (1.0 if np.cross(edge, across)[1] > 0 else -1.0) * w0 * edge  # landing edge down
     return R, size, m, I, corners, pivot, landing, omega
