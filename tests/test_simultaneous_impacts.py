@@ -430,8 +430,66 @@ def test_a_whole_step_of_an_edge_landing_matches_the_planar_impact(seed, pivotin
             break
     else:
         pytest.fail("no landing drawn in 1000 tries")
-    x, y, z, w = __import__("scipy.spatial.transform", fromlist=["Rotation"]) \
-        .Rotation.from_matrix(R).as_quat()
+    s = _one_step_on_ground(mode, eps, mu, m, R, size, float(-corners[:, 1].min()), vel,
+                            omega)
+    scale = abs(vn)
+    assert np.abs(s.body_vel[1] - v_after).max() <= 1e-9 * scale, (s.body_vel[1], v_after)
+    assert np.abs(s.body_angvel[1] - w_after).max() * np.abs(corners).max() <= 1e-9 * scale, \
+        (s.body_angvel[1], w_after)
+
+
+# Stepped cases left short by the impact's stall rule (kernels/stepped.py `_impact_done`,
+# docs/collision-response.md Known limits): measured errors of the approach speed.
+FLAT_STICK_KNOWN = {
+    ("stepped", 11): "stepped impact sweeps stopped by the stall rule: 1.7e-8 of |v_n| off",
+    ("stepped", 18): "stepped impact sweeps stopped by the stall rule: 2.3e-4 of |v_n| off",
+}
+
+
+@pytest.mark.parametrize("mode", ["located", "stepped"])
+@pytest.mark.parametrize("seed", range(24))
+def test_a_whole_step_of_a_flat_landing_with_sticking_friction(seed, mode, request):
+    """A box lands flat on a face (random size, mass, turn about the vertical), sliding
+    at up to half its approach speed, no spin, mu = 3, one 1 ms step without gravity.
+    Truth: Newton's law and sticking at every corner, which a flat face allows when the
+    friction's moment about the centre, h m |u_t|, is within half of what the normal
+    impulses can balance, (1 + eps) m |v_n| times the face's smaller half-width (drawn
+    so): the box leaves at (0, -eps v_n, 0) without spin. Tolerance 1e-9 of the approach
+    speed (round-off of the solves). The class a review found left short in stepped mode
+    (its 4 of 16 on 3d5071e and on 2952280; here 2 of 24 stepped, strict xfails; located
+    passes all)."""
+    if (mode, seed) in FLAT_STICK_KNOWN:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=FLAT_STICK_KNOWN[
+            (mode, seed)]))
+    rng = np.random.default_rng(9500 + seed)
+    eps = float((0.0, 0.3, 0.5, 1.0)[seed % 4])
+    for _ in range(1000):
+        size, m, R, corners = _face_down_pose(rng)
+        h = float(-corners[:, 1].min())
+        half = 0.5 * min(np.linalg.norm(corners[1] - corners[0]),
+                         np.linalg.norm(corners[2] - corners[0]))
+        vn = -float(rng.uniform(0.1, 5.0))
+        ut = rng.normal(size=2)
+        ut *= float(rng.uniform(0.0, 0.5)) * abs(vn) / np.linalg.norm(ut)
+        if h * np.linalg.norm(ut) <= 0.5 * (1.0 + eps) * abs(vn) * half:
+            break
+    else:
+        pytest.fail("no landing drawn in 1000 tries")
+    s = _one_step_on_ground(mode, eps, 3.0, m, R, size, h, np.array([ut[0], vn, ut[1]]),
+                            np.zeros(3))
+    scale = abs(vn)
+    assert np.abs(s.body_vel[1] - [0.0, -eps * vn, 0.0]).max() <= 1e-9 * scale, s.body_vel[1]
+    assert np.abs(s.body_angvel[1]).max() * np.abs(corners).max() <= 1e-9 * scale, \
+        s.body_angvel[1]
+
+
+def _one_step_on_ground(mode, eps, mu, m, R, size, height, vel, omega):
+    """The final state of one 1 ms step, no gravity, symplectic Euler, impacts `mode`,
+    of a box (mass m, rotation R, size) with its centre `height` above a ground plane,
+    moving at vel and omega (world), both with restitution eps and friction mu."""
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
     dt = 1e-3
     _, _, s = simulate(f"""
 vrsim: 1
@@ -444,12 +502,10 @@ collision: {{impacts: {mode}}}
 bodies:
   - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
      material: {{restitution: {eps}, friction: {mu!r}}}}}
-  - {{name: box, mass: {m!r}, position: [0, {float(-corners[:, 1].min())!r}, 0],
-     orientation: {[float(w), float(x), float(y), float(z)]}, velocity: {vel.tolist()},
-     angular_velocity: {omega.tolist()}, shape: {{type: box, size: {size.tolist()}}},
+  - {{name: box, mass: {m!r}, position: [0, {height!r}, 0],
+     orientation: {[float(w), float(x), float(y), float(z)]},
+     velocity: {[float(c) for c in vel]}, angular_velocity: {[float(c) for c in omega]},
+     shape: {{type: box, size: {size.tolist()}}},
      material: {{restitution: {eps}, friction: {mu!r}}}}}
 """)
-    scale = abs(vn)
-    assert np.abs(s.body_vel[1] - v_after).max() <= 1e-9 * scale, (s.body_vel[1], v_after)
-    assert np.abs(s.body_angvel[1] - w_after).max() * np.abs(corners).max() <= 1e-9 * scale, \
-        (s.body_angvel[1], w_after)
+    return s
