@@ -438,29 +438,19 @@ def test_a_whole_step_of_an_edge_landing_matches_the_planar_impact(seed, pivotin
         (s.body_angvel[1], w_after)
 
 
-# Stepped cases left short by the impact's stall rule (kernels/stepped.py `_impact_done`,
-# docs/collision-response.md Known limits): measured errors of the approach speed.
-FLAT_STICK_KNOWN = {
-    ("stepped", 11): "stepped impact sweeps stopped by the stall rule: 1.7e-8 of |v_n| off",
-    ("stepped", 18): "stepped impact sweeps stopped by the stall rule: 2.3e-4 of |v_n| off",
-}
-
-
 @pytest.mark.parametrize("mode", ["located", "stepped"])
 @pytest.mark.parametrize("seed", range(24))
-def test_a_whole_step_of_a_flat_landing_with_sticking_friction(seed, mode, request):
+def test_a_whole_step_of_a_flat_landing_with_sticking_friction(seed, mode):
     """A box lands flat on a face (random size, mass, turn about the vertical), sliding
     at up to half its approach speed, no spin, mu = 3, one 1 ms step without gravity.
     Truth: Newton's law and sticking at every corner, which a flat face allows when the
     friction's moment about the centre, h m |u_t|, is within half of what the normal
     impulses can balance, (1 + eps) m |v_n| times the face's smaller half-width (drawn
     so): the box leaves at (0, -eps v_n, 0) without spin. Tolerance 1e-9 of the approach
-    speed (round-off of the solves). The class a review found left short in stepped mode
-    (its 4 of 16 on 3d5071e and on 2952280; here 2 of 24 stepped, strict xfails; located
-    passes all)."""
-    if (mode, seed) in FLAT_STICK_KNOWN:
-        request.applymarker(pytest.mark.xfail(strict=True, reason=FLAT_STICK_KNOWN[
-            (mode, seed)]))
+    speed (round-off of the solves). A review found the class left short in stepped mode
+    (its 4 of 16 on 3d5071e and on 2952280; these 24: 2 stepped failed on 2952280, by
+    1.7e-8 and 2.3e-4 of |v_n|): the impact's sweeps stopped before converging; now such
+    an impact is solved at once (`kernels.stepped._direct_impact`)."""
     rng = np.random.default_rng(9500 + seed)
     eps = float((0.0, 0.3, 0.5, 1.0)[seed % 4])
     for _ in range(1000):

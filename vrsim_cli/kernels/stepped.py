@@ -54,6 +54,7 @@ import numpy as np
 from vrsim_cli.kernels import collide as kc
 from vrsim_cli.kernels import dynamics as kd
 from vrsim_cli.kernels import linalg as la
+from vrsim_cli.kernels import pinv as kp
 from vrsim_cli.kernels.jit import kernel
 
 NONE, STOP, SLIDE, IMPULSE = range(4)  # as model.response
@@ -471,7 +472,8 @@ def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
     for q in range(m):
         if lam[3 * q] >= 0.0:
             _start_velocity(K, c0 + q, U, Wv, vb, q)
-    _impact_solve(K, c0, m, lam, tl, U, Wv, True)
+    if not _direct_impact(K, c0, m, lam, tl, U, Wv):
+        _impact_solve(K, c0, m, lam, tl, U, Wv, True)
     gain, scale = _impact_work(K, c0, m, lam, tl, vb, U, Wv)
     if gain > IMPACT_GAIN_ROUNDOFF * scale:
         # Newton's law at the points solved together with Coulomb friction can add
@@ -510,6 +512,91 @@ def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
 
 IMPACT_GAIN_ROUNDOFF = 1e-12  # an impact's energy change above this share of its
 # impulses' work |lam . v| is a gain, not round-off
+
+
+@kernel
+def _direct_impact(K, c0, m, lam, tl, U, Wv):
+    """An impact of two or more points (lam[3q] >= 0) solved at once, when it can be: every
+    normal to its target lam[3q + 1] and, where mu > 0, every point sticking, as one
+    minimum-norm solve W x = goal - v over those rows (W = J M^-1 J^T of the pair's two
+    bodies; the pseudo-inverse of `kernels.pinv`, singular values below 1e-10 of the
+    largest dropped: a face's corners make W singular). Applied (into U, Wv and tl) and
+    True when it is a solution: the targets are met (residual <= 1e-9 of the velocity
+    scale), no normal impulse pulls and every friction lies in its cone; else False and
+    nothing changed, and the sweeps solve the impact. Why: the sweeps over a face's
+    corners converge slowly, and cycle in piles, where this solve is exact at once (the
+    located solver's sticking round, `solver._sticking_round`); the caller's energy check
+    still rejects a solution that adds energy (Kane's paradox)."""
+    n_pts = 0
+    for q in range(m):
+        if lam[3 * q] >= 0.0:
+            n_pts += 1
+            if K[c0 + q, K_PASSES] > 0.0:
+                return False  # a later round of a chain or pile: left to the sweeps
+    if n_pts < 2:
+        return False
+    pt = np.empty(3 * m, np.int64)
+    dj = np.empty(3 * m, np.int64)
+    nr = 0
+    for q in range(m):
+        if lam[3 * q] < 0.0:
+            continue
+        for j in range(3 if K[c0 + q, K_MU] > 0.0 else 1):
+            pt[nr] = q
+            dj[nr] = j
+            nr += 1
+    A = np.empty((1, nr, nr))
+    im = K[c0, K_IMA] + K[c0, K_IMB]
+    for r in range(nr):
+        i, j = c0 + pt[r], dj[r]
+        for t in range(nr):
+            i2, j2 = c0 + pt[t], dj[t]
+            w = 0.0
+            for c in range(3):
+                w += im * K[i, K_N + 3 * j + c] * K[i2, K_N + 3 * j2 + c] \
+                    + K[i, K_RNB + 6 * j + c] * K[i2, K_WNB + 6 * j2 + c] \
+                    + K[i, K_RNA + 6 * j + c] * K[i2, K_WNA + 6 * j2 + c]
+            A[0, r, t] = w
+    rhs = np.empty(nr)
+    scale = 0.0
+    for r in range(nr):
+        i, j = c0 + pt[r], dj[r]
+        v = rel(K, i, j, U, Wv) - K[i, K_KICK + j]
+        goal = lam[3 * pt[r] + 1] if j == 0 else 0.0
+        rhs[r] = goal - v
+        scale = max(scale, abs(v), abs(goal))
+    P = np.empty((1, nr, nr))
+    kp.pinv_symmetric(A, 1e-10, P)
+    x = np.zeros(nr)
+    largest = 0.0
+    for r in range(nr):
+        for t in range(nr):
+            x[r] += P[0, r, t] * rhs[t]
+        largest = max(largest, abs(x[r]))
+    for r in range(nr):  # the targets met: W x = rhs
+        wx = 0.0
+        for t in range(nr):
+            wx += A[0, r, t] * x[t]
+        if not abs(wx - rhs[r]) <= 1e-9 * scale:
+            return False
+    r = 0
+    while r < nr:  # no pull, friction in its cone
+        i = c0 + pt[r]
+        xn = x[r]
+        if xn < -1e-12 * largest:
+            return False
+        if r + 2 < nr and pt[r + 1] == pt[r]:  # the point's rows n, t1, t2
+            f = math.sqrt(x[r + 1] * x[r + 1] + x[r + 2] * x[r + 2])
+            if f > K[i, K_MU] * max(xn, 0.0):
+                return False
+            r += 3
+        else:
+            r += 1
+    for r in range(nr):
+        i = c0 + pt[r]
+        apply(K, i, dj[r], x[r], U, Wv)
+        tl[pt[r], dj[r]] = x[r]
+    return True
 
 
 @kernel(inline="always")
