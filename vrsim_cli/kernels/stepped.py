@@ -472,7 +472,7 @@ def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
     for q in range(m):
         if lam[3 * q] >= 0.0:
             _start_velocity(K, c0 + q, U, Wv, vb, q)
-    if not _direct_impact(K, c0, m, lam, tl, U, Wv):
+    if not _direct_impact(K, c0, m, lam, vb, tl, U, Wv):
         _impact_solve(K, c0, m, lam, tl, U, Wv, True)
     gain, scale = _impact_work(K, c0, m, lam, tl, vb, U, Wv)
     if gain > IMPACT_GAIN_ROUNDOFF * scale:
@@ -515,7 +515,7 @@ IMPACT_GAIN_ROUNDOFF = 1e-12  # an impact's energy change above this share of it
 
 
 @kernel
-def _direct_impact(K, c0, m, lam, tl, U, Wv):
+def _direct_impact(K, c0, m, lam, vb, tl, U, Wv):
     """An impact of two or more points (lam[3q] >= 0) solved at once, when it can be: every
     normal to its target lam[3q + 1] and, where mu > 0, every point sticking, as one
     minimum-norm solve W x = goal - v over those rows (W = J M^-1 J^T of the pair's two
@@ -526,7 +526,8 @@ def _direct_impact(K, c0, m, lam, tl, U, Wv):
     nothing changed, and the sweeps solve the impact. Why: the sweeps over a face's
     corners converge slowly, and cycle in piles, where this solve is exact at once (the
     located solver's sticking round, `solver._sticking_round`); the caller's energy check
-    still rejects a solution that adds energy (Kane's paradox)."""
+    still rejects a solution that adds energy (Kane's paradox). vb (m, 3): the points'
+    start-of-step velocities before the impact (`_start_velocity`)."""
     n_pts = 0
     for q in range(m):
         if lam[3 * q] >= 0.0:
@@ -560,8 +561,8 @@ def _direct_impact(K, c0, m, lam, tl, U, Wv):
     rhs = np.empty(nr)
     scale = 0.0
     for r in range(nr):
-        i, j = c0 + pt[r], dj[r]
-        v = rel(K, i, j, U, Wv) - K[i, K_KICK + j]
+        j = dj[r]
+        v = vb[pt[r], j]
         goal = lam[3 * pt[r] + 1] if j == 0 else 0.0
         rhs[r] = goal - v
         scale = max(scale, abs(v), abs(goal))
@@ -1334,35 +1335,37 @@ def expand_pairs(gf, lo, hi, pad, step, grown, K, k0, k):
         x[q] = lo[bounded[q], 0]
     by_x = np.argsort(x, kind="mergesort")
     xs = np.empty(nb)
-    box = np.empty((nb, 6))  # the boxes in that order, for the quick rejection below
-    for q in range(nb):
+    box = np.empty((nb, 5))  # in that order, for the quick rejection below: the high x,
+    for q in range(nb):  # then low and high y and z
+        g = bounded[by_x[q]]
         xs[q] = x[by_x[q]]
-        for c in range(3):
-            box[q, c] = lo[bounded[by_x[q]], c]
-            box[q, 3 + c] = hi[bounded[by_x[q]], c]
+        box[q, 0] = hi[g, 0]
+        for c in range(1, 3):
+            box[q, 2 * c - 1] = lo[g, c]
+            box[q, 2 * c] = hi[g, c]
     near = np.empty(n_geom, np.int64)
     for i in range(n_geom):
         if gf[i, kc.G_EMIT] > step or not grown[int(gf[i, kc.G_BODY])]:
             continue
+        # the test is pure, so test first and sort only the pairs it keeps (sorting
+        # every geom of the window, for each grown geom in each round, was most of a step
+        # of 1000 spheres while they still flew)
+        cnt = 0
         if not (math.isfinite(lo[i, 0]) and math.isfinite(hi[i, 0])):
-            cnt = 0
             for j in range(n_geom):
-                near[cnt] = j
-                cnt += 1
+                if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
+                    near[cnt] = j
+                    cnt += 1
         else:
             # a box overlapping i's along x starts in [lo_i - width, hi_i] (the slack
             # covers the rounding of the widths)
             first = lo[i, 0] - width - 1e-9 * (width + abs(lo[i, 0]))
             a, b = np.searchsorted(xs, first, "left"), np.searchsorted(xs, hi[i, 0], "right")
-            # the test is pure, so test first and sort only the pairs it keeps (sorting
-            # every geom of the window, for each grown geom in each round, was most of a
-            # step of 1000 spheres while they still flew)
-            cnt = 0
             for q in range(a, b):
                 # boxes apart along an axis fail `_late_pair`'s overlap test: rejected
                 # here from contiguous rows first (most of the window)
-                if (box[q, 3] < lo[i, 0] or box[q, 1] > hi[i, 1] or box[q, 4] < lo[i, 1]
-                        or box[q, 2] > hi[i, 2] or box[q, 5] < lo[i, 2]):
+                if (box[q, 0] < lo[i, 0] or box[q, 1] > hi[i, 1] or box[q, 2] < lo[i, 1]
+                        or box[q, 3] > hi[i, 2] or box[q, 4] < lo[i, 2]):
                     continue
                 j = bounded[by_x[q]]
                 if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
@@ -1374,15 +1377,9 @@ def expand_pairs(gf, lo, hi, pad, step, grown, K, k0, k):
                     near[cnt] = j
                     cnt += 1
             near[:cnt].sort()
-            for e in range(cnt):
-                P = kc._push_pair(P, m, i, near[e])
-                m += 1
-            continue
         for e in range(cnt):
-            j = near[e]
-            if _late_pair(gf, lo, hi, pad, step, grown, K, k0, k, i, j):
-                P = kc._push_pair(P, m, i, j)
-                m += 1
+            P = kc._push_pair(P, m, i, near[e])
+            m += 1
     return P, m
 
 
