@@ -386,3 +386,14 @@ def test_a_box_capsule_gap_where_fcls_gjk_stops_short():
     _, _, _, depth = narrow_phase(cm, world, np.array([0]), np.array([1]), np.inf)
     assert -depth.max() == pytest.approx(_capsule_box_gap(cm, world), abs=1e-9)
     assert -depth.max() == pytest.approx(7.4574e-3, abs=1e-7)
+
+
+def test_a_sphere_centred_on_a_cylinders_axis_is_inside_it():
+    """A sphere (r 1) whose centre lies 1e-12 m from a cylinder's (r 0.5, half length 1)
+    centre, on its axis: it is inside, and leaves through the side, depth 1 + 0.5 (the
+    pose hypothesis found: the radial direction fell back to a default there, and the
+    centre was classed outside, depth 1)."""
+    cm, world = setup({"type": "cylinder", "radius": 0.5, "length": 2.0}, sphere(1.0),
+                      (0.0, 0.0, 0.0), (0.0, 1e-12, 0.0), quat_normalize((0.0, 0.0, 1.0, 1.0)))
+    _, _, _, depth = narrow_phase(cm, world, np.array([0]), np.array([1]), np.inf)
+    assert depth.max() == pytest.approx(1.5, abs=1e-9)

@@ -551,7 +551,9 @@ def cylinder_sphere(gf, W, ga, gb, margin, C, k):
     closest = (radial_dir[0] * rr, _clip(y, -h, h), radial_dir[2] * rr)
     diff, dist = _unit(la.sub(local, closest), UP)
     side_gap, cap_gap = r - radial, h - abs(y)
-    if dist <= EPS:
+    # inside also where the centre is on the axis to within EPS: there the radial
+    # direction is a fallback and `closest` misses the centre by up to 2 radial
+    if dist <= EPS or (side_gap >= 0.0 and cap_gap >= 0.0):
         sign = 1.0 if y >= 0.0 else -1.0
         if side_gap <= cap_gap:
             n_local = radial_dir

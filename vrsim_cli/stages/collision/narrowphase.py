@@ -136,8 +136,10 @@ def cylinder_sphere(cm, world, ia, ib, margin):
     closest = radial_dir * np.minimum(radial, r)[:, None]
     closest[:, 1] = np.clip(y, -h, h)
     diff, dist = _unit(local - closest)
-    inside = dist <= _EPS
     side_gap, cap_gap = r - radial, h - np.abs(y)
+    # inside also where the centre is on the axis to within _EPS: there the radial
+    # direction is a fallback and `closest` misses the centre by up to 2 radial
+    inside = (dist <= _EPS) | ((side_gap >= 0.0) & (cap_gap >= 0.0))
     to_side = side_gap <= cap_gap
     sign = np.where(y >= 0.0, 1.0, -1.0)
     n_in = np.where(to_side[:, None], radial_dir, sign[:, None] * _UP)
