@@ -340,3 +340,91 @@ def test_symmetric_pseudo_inverse_matches_numpy(seed):
         # Penrose: A X A = A and X A X = X
         assert np.abs(A[b] @ out[b] @ A[b] - A[b]).max() <= 1e-13 * cond * np.abs(A[b]).max()
         assert np.abs(out[b] @ A[b] @ out[b] - out[b]).max() <= 1e-13 * cond * scale
+
+
+def _random_impact(rng):
+    """A box-like body landing on the ground (normal +y) at k = 2-4 points below its
+    centre (up to 1 mm apart in height), every point taking part (drawn again until a
+    frictionless impact pushes at each): (W (3k, 3k) = J M^-1 J^T over each point's n,
+    t1, t2, v (3k,) the points' velocities, goal (3k,) Newton's targets on the normal
+    rows, mu (k,))."""
+    while True:
+        W, v, goal, mu = _any_impact(rng)
+        xn = np.linalg.pinv(W[0::3, 0::3], rcond=1e-10) @ (goal - v)[0::3]
+        if xn.min() > 0.0:
+            return W, v, goal, mu
+
+
+def _any_impact(rng):
+    k = int(rng.integers(2, 5))
+    m = float(rng.uniform(0.1, 10.0))
+    Q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    I_inv = np.linalg.inv(Q @ np.diag(rng.uniform(0.01, 2.0, 3)) @ Q.T)
+    points = rng.uniform(-0.5, 0.5, (k, 3))
+    points[:, 1] = -rng.uniform(0.05, 0.5) + rng.uniform(-1e-3, 1e-3, k) * (k > 2)
+    dirs = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    J = np.array([np.concatenate([d, np.cross(p, d)]) for p in points for d in dirs])
+    Minv = np.zeros((6, 6))
+    Minv[:3, :3], Minv[3:, 3:] = np.eye(3) / m, I_inv
+    W = J @ Minv @ J.T
+    u = np.concatenate([rng.normal(size=3) * rng.uniform(0.1, 3.0),
+                        rng.normal(size=3) * rng.uniform(0.0, 5.0)])
+    u[1] -= (J[0::3] @ u).max() + float(rng.uniform(0.1, 3.0))  # every point approaching
+    v = J @ u
+    eps = float(rng.choice([0.0, 0.5, 1.0]))
+    goal = np.zeros(3 * k)
+    goal[0::3] = -eps * v[0::3]
+    mu = rng.uniform(0.05, 1.5, k) * (rng.uniform(size=k) > 0.15)
+    return W, v, goal, mu
+
+
+def test_the_sliding_impact_kernel_meets_coulombs_law_and_matches_the_numpy_solver():
+    """`kernels.stepped._slip_solve` (an impact whose points may stick or slide) on 200
+    random impacts of 2-4 points with spin: where it returns a solution, it is one of
+    Newton's law with Coulomb friction (checked here from W, v and the impulses: normal
+    rows at their targets, no pull; a sticking point: no slip, friction inside its cone;
+    a sliding one: friction mu lam_n against its slip after the impact; to 1e-9 of the
+    velocity scale), and where the located solver's numpy `solver._slipping_solve` (its
+    plain reference) finds one from the same start too, the velocities agree to 1e-9.
+    It must find one for at least 50 of the 200 (measured: 59; the numpy one 58). The
+    others fall back to the sweeps: friction makes a point pull (76, the normal set
+    would change), the statuses and slip directions do not settle in SLIP_ROUNDS (49),
+    or the system is inconsistent (16)."""
+    from vrsim_cli.kernels.stepped import _slip_solve
+    from vrsim_cli.stages.collision import solver
+
+    solved = 0
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        W, v, goal, mu = _random_impact(rng)
+        k = len(mu)
+        rhs = goal - v
+        scale = float(np.abs(v).max() + np.abs(goal).max())
+        stick = np.linalg.pinv(W, rcond=1e-10) @ rhs  # (only the `over` flags come from it)
+        over = (np.sqrt(stick[1::3] ** 2 + stick[2::3] ** 2) >
+                mu * np.maximum(stick[0::3], 0.0)) & (mu > 0.0)
+        x = stick.copy()
+        if not _slip_solve(W, rhs, mu, over, x, scale):
+            continue
+        solved += 1
+        tol = 1e-9 * scale
+        w = v + W @ x
+        assert np.abs(w[0::3] - goal[0::3]).max() <= tol, seed
+        assert x[0::3].min() >= -1e-12 * np.abs(x).max(), seed
+        for p in range(k):
+            t, slip = x[3 * p + 1:3 * p + 3], w[3 * p + 1:3 * p + 3]
+            if mu[p] == 0.0:
+                assert np.abs(t).max() == 0.0, seed
+            elif np.linalg.norm(slip) <= tol:  # sticking
+                assert np.linalg.norm(t) <= mu[p] * x[3 * p] * (1 + 1e-9) + tol, seed
+            else:  # sliding: at the cone's edge, against the slip
+                assert np.abs(t + mu[p] * x[3 * p] * slip / np.linalg.norm(slip)).max() <= \
+                    1e-9 * np.abs(x).max(), seed
+        free = np.zeros(3 * k)
+        free[0::3] = np.linalg.pinv(W[0::3, 0::3], rcond=1e-10) @ rhs[0::3]
+        free = (v + W @ free).reshape(k, 3)[:, 1:]
+        lam = solver._slipping_solve(W, v, goal, np.ones(k, bool), mu > 0.0, over,
+                                     stick.reshape(k, 3), free, mu)
+        if lam is not None:
+            assert np.abs((v + W @ lam.ravel()) - w).max() <= tol, seed
+    assert solved >= 50

@@ -514,20 +514,28 @@ IMPACT_GAIN_ROUNDOFF = 1e-12  # an impact's energy change above this share of it
 # impulses' work |lam . v| is a gain, not round-off
 
 
+SLIP_ROUNDS = 24  # stick/slip status and slip-direction updates of `_direct_impact`
+SLIP_TURN = 1e-12  # rad: a sliding point's slip direction is settled when it turns less
+
+
 @kernel
 def _direct_impact(K, c0, m, lam, vb, tl, U, Wv):
     """An impact of two or more points (lam[3q] >= 0) solved at once, when it can be: every
     normal to its target lam[3q + 1] and, where mu > 0, every point sticking, as one
     minimum-norm solve W x = goal - v over those rows (W = J M^-1 J^T of the pair's two
     bodies; the pseudo-inverse of `kernels.pinv`, singular values below 1e-10 of the
-    largest dropped: a face's corners make W singular). Applied (into U, Wv and tl) and
-    True when it is a solution: the targets are met (residual <= 1e-9 of the velocity
-    scale), no normal impulse pulls and every friction lies in its cone; else False and
-    nothing changed, and the sweeps solve the impact. Why: the sweeps over a face's
-    corners converge slowly, and cycle in piles, where this solve is exact at once (the
-    located solver's sticking round, `solver._sticking_round`); the caller's energy check
-    still rejects a solution that adds energy (Kane's paradox). vb (m, 3): the points'
-    start-of-step velocities before the impact (`_start_velocity`)."""
+    largest dropped: a face's corners make W singular). Where a point's friction would
+    leave its cone, the point slides instead: friction mu lam_n against its slip after
+    the impact, statuses and slip directions updated until they agree (`_slip_solve`,
+    the located solver's `solver._slipping_solve`). Applied (into U, Wv and tl) and True
+    when it is a solution: the targets are met (residual <= 1e-9 of the velocity
+    scale), no normal impulse pulls and every friction lies in (or, sliding, on) its
+    cone; else False and nothing changed, and the sweeps solve the impact. Why: the
+    sweeps over a face's corners converge slowly, and cycle in piles, where this solve is
+    exact at once (the located solver's sticking round, `solver._sticking_round`); the
+    caller's energy check still rejects a solution that adds energy (Kane's paradox).
+    vb (m, 3): the points' start-of-step velocities before the impact
+    (`_start_velocity`)."""
     n_pts = 0
     for q in range(m):
         if lam[3 * q] >= 0.0:
@@ -536,68 +544,219 @@ def _direct_impact(K, c0, m, lam, vb, tl, U, Wv):
                 return False  # a later round of a chain or pile: left to the sweeps
     if n_pts < 2:
         return False
-    pt = np.empty(3 * m, np.int64)
-    dj = np.empty(3 * m, np.int64)
-    nr = 0
+    pq = np.empty(n_pts, np.int64)  # the impact's points, in order
+    mu = np.empty(n_pts)
+    p = 0
     for q in range(m):
-        if lam[3 * q] < 0.0:
-            continue
-        for j in range(3 if K[c0 + q, K_MU] > 0.0 else 1):
-            pt[nr] = q
-            dj[nr] = j
-            nr += 1
-    A = np.empty((1, nr, nr))
+        if lam[3 * q] >= 0.0:
+            pq[p] = q
+            mu[p] = K[c0 + q, K_MU]
+            p += 1
+    nf = 3 * n_pts
+    Wf = np.empty((nf, nf))  # rows 3 p + j: point p, direction j (n, t1, t2)
     im = K[c0, K_IMA] + K[c0, K_IMB]
-    for r in range(nr):
-        i, j = c0 + pt[r], dj[r]
-        for t in range(nr):
-            i2, j2 = c0 + pt[t], dj[t]
+    for r in range(nf):
+        i, j = c0 + pq[r // 3], r % 3
+        for t in range(nf):
+            i2, j2 = c0 + pq[t // 3], t % 3
             w = 0.0
             for c in range(3):
                 w += im * K[i, K_N + 3 * j + c] * K[i2, K_N + 3 * j2 + c] \
                     + K[i, K_RNB + 6 * j + c] * K[i2, K_WNB + 6 * j2 + c] \
                     + K[i, K_RNA + 6 * j + c] * K[i2, K_WNA + 6 * j2 + c]
-            A[0, r, t] = w
-    rhs = np.empty(nr)
+            Wf[r, t] = w
+    rhs = np.empty(nf)  # goal - v
     scale = 0.0
-    for r in range(nr):
-        j = dj[r]
-        v = vb[pt[r], j]
-        goal = lam[3 * pt[r] + 1] if j == 0 else 0.0
+    for r in range(nf):
+        v = vb[pq[r // 3], r % 3]
+        goal = lam[3 * pq[r // 3] + 1] if r % 3 == 0 else 0.0
         rhs[r] = goal - v
         scale = max(scale, abs(v), abs(goal))
+    # every point sticking: the rows n (and t1, t2 where mu > 0), W symmetric
+    rows = np.empty(nf, np.int64)
+    nr = 0
+    for p in range(n_pts):
+        for j in range(3 if mu[p] > 0.0 else 1):
+            rows[nr] = 3 * p + j
+            nr += 1
+    A = np.empty((1, nr, nr))
+    for r in range(nr):
+        for t in range(nr):
+            A[0, r, t] = Wf[rows[r], rows[t]]
     P = np.empty((1, nr, nr))
     kp.pinv_symmetric(A, 1e-10, P)
-    x = np.zeros(nr)
+    xs = np.zeros(nr)
     largest = 0.0
     for r in range(nr):
         for t in range(nr):
-            x[r] += P[0, r, t] * rhs[t]
-        largest = max(largest, abs(x[r]))
+            xs[r] += P[0, r, t] * rhs[rows[t]]
+        largest = max(largest, abs(xs[r]))
     for r in range(nr):  # the targets met: W x = rhs
         wx = 0.0
         for t in range(nr):
-            wx += A[0, r, t] * x[t]
-        if not abs(wx - rhs[r]) <= 1e-9 * scale:
+            wx += A[0, r, t] * xs[t]
+        if not abs(wx - rhs[rows[r]]) <= 1e-9 * scale:
             return False
-    r = 0
-    while r < nr:  # no pull, friction in its cone
-        i = c0 + pt[r]
-        xn = x[r]
-        if xn < -1e-12 * largest:
-            return False
-        if r + 2 < nr and pt[r + 1] == pt[r]:  # the point's rows n, t1, t2
-            f = math.sqrt(x[r + 1] * x[r + 1] + x[r + 2] * x[r + 2])
-            if f > K[i, K_MU] * max(xn, 0.0):
-                return False
-            r += 3
-        else:
-            r += 1
+    x = np.zeros(nf)
     for r in range(nr):
-        i = c0 + pt[r]
-        apply(K, i, dj[r], x[r], U, Wv)
-        tl[pt[r], dj[r]] = x[r]
+        x[rows[r]] = xs[r]
+    over = np.zeros(n_pts, np.bool_)
+    stuck = True  # no pull, every friction in its cone
+    rubbing = False
+    for p in range(n_pts):
+        xn = x[3 * p]
+        if xn < -1e-12 * largest:
+            stuck = False
+        if mu[p] > 0.0:
+            rubbing = True
+            f = math.sqrt(x[3 * p + 1] * x[3 * p + 1] + x[3 * p + 2] * x[3 * p + 2])
+            if f > mu[p] * max(xn, 0.0):
+                over[p] = True
+                stuck = False
+    if not stuck:  # some point slides, if any can
+        if not rubbing or not _slip_solve(Wf, rhs, mu, over, x, scale):
+            return False
+    for p in range(n_pts):
+        i = c0 + pq[p]
+        for j in range(3):
+            apply(K, i, j, x[3 * p + j], U, Wv)
+            tl[pq[p], j] = x[3 * p + j]
     return True
+
+
+@kernel
+def _slip_solve(Wf, rhs, mu, over, x, scale):
+    """The impulses x (3 n,) of an impact with some points sliding: Newton's law on the
+    normal rows, each point with friction sticking (slip 0, friction inside its cone) or
+    sliding (friction -mu x_n s, s its slip direction after the impact, not reversed),
+    updating statuses and directions until they agree (SLIP_ROUNDS, to SLIP_TURN). First
+    every point with friction that slips after a frictionless impact slides, in that
+    direction; one that does not but whose sticking friction (in x) is `over` its cone,
+    against that friction (starting from the sticking friction alone, whose share among
+    a face's corners is arbitrary, a box landing flat while sliding cycled). Each
+    round is one minimum-norm solve of the square A y = rhs on the normal rows and the
+    sticking points' tangent rows, y the normal impulses and sticking frictions (A =
+    Wf B, B mapping y to the impulses; not symmetric, so through A^T A's
+    pseudo-inverse), kept when it meets its rows to 1e-9 of `scale`. True with x the
+    solution, or False (x undefined) when none is found or a normal would pull. Wf
+    (3 n, 3 n): the Delassus matrix over every point's n, t1, t2; rhs (3 n,): goal - v.
+    As the located solver's `solver._slipping_solve`."""
+    n = mu.shape[0]
+    nf = 3 * n
+    # the frictionless impact (normal rows, minimum-norm) and the slip after it
+    Wn = np.empty((1, n, n))
+    for p in range(n):
+        for p2 in range(n):
+            Wn[0, p, p2] = Wf[3 * p, 3 * p2]
+    Pn = np.empty((1, n, n))
+    kp.pinv_symmetric(Wn, 1e-10, Pn)
+    xn = np.zeros(n)
+    for p in range(n):
+        for p2 in range(n):
+            xn[p] += Pn[0, p, p2] * rhs[3 * p2]
+    slide = np.zeros(n, np.bool_)
+    s = np.zeros((n, 2))
+    for p in range(n):
+        if mu[p] == 0.0:
+            continue
+        v1, v2 = -rhs[3 * p + 1], -rhs[3 * p + 2]  # (v = goal - rhs: goal 0 along t)
+        for p2 in range(n):
+            v1 += Wf[3 * p + 1, 3 * p2] * xn[p2]
+            v2 += Wf[3 * p + 2, 3 * p2] * xn[p2]
+        speed = math.sqrt(v1 * v1 + v2 * v2)
+        if speed > 0.0:
+            slide[p] = True
+            s[p, 0], s[p, 1] = v1 / speed, v2 / speed
+        elif over[p]:
+            f = math.sqrt(x[3 * p + 1] * x[3 * p + 1] + x[3 * p + 2] * x[3 * p + 2])
+            slide[p] = True
+            s[p, 0], s[p, 1] = -x[3 * p + 1] / f, -x[3 * p + 2] / f
+    rows = np.empty(nf, np.int64)
+    w = np.empty(nf)
+    for _ in range(SLIP_ROUNDS):
+        nr = 0
+        for p in range(n):
+            rows[nr] = 3 * p
+            nr += 1
+            if mu[p] > 0.0 and not slide[p]:
+                rows[nr], rows[nr + 1] = 3 * p + 1, 3 * p + 2
+                nr += 2
+        A = np.empty((nr, nr))  # A[r, u] = (Wf B)[rows[r], u]: column u is row u's unknown
+        for r in range(nr):
+            for u in range(nr):
+                c = rows[u]
+                a = Wf[rows[r], c]
+                if c % 3 == 0 and slide[c // 3]:
+                    p = c // 3
+                    a -= mu[p] * (s[p, 0] * Wf[rows[r], c + 1] + s[p, 1] * Wf[rows[r], c + 2])
+                A[r, u] = a
+        N = np.empty((1, nr, nr))
+        g = np.zeros(nr)
+        for u in range(nr):
+            for u2 in range(nr):
+                acc = 0.0
+                for r in range(nr):
+                    acc += A[r, u] * A[r, u2]
+                N[0, u, u2] = acc
+            for r in range(nr):
+                g[u] += A[r, u] * rhs[rows[r]]
+        P = np.empty((1, nr, nr))
+        kp.pinv_symmetric(N, 1e-10, P)
+        y = np.zeros(nr)
+        for u in range(nr):
+            for u2 in range(nr):
+                y[u] += P[0, u, u2] * g[u2]
+        for r in range(nr):
+            ay = 0.0
+            for u in range(nr):
+                ay += A[r, u] * y[u]
+            if not abs(ay - rhs[rows[r]]) <= 1e-9 * scale:
+                return False
+        for c in range(nf):
+            x[c] = 0.0
+        for u in range(nr):
+            c = rows[u]
+            x[c] = y[u]
+            if c % 3 == 0 and slide[c // 3]:
+                p = c // 3
+                x[c + 1] = -mu[p] * s[p, 0] * y[u]
+                x[c + 2] = -mu[p] * s[p, 1] * y[u]
+        for r in range(nf):  # the change of velocity W x (the velocity after less before)
+            acc = 0.0
+            for c in range(nf):
+                acc += Wf[r, c] * x[c]
+            w[r] = acc
+        largest = 0.0
+        for u in range(nr):
+            largest = max(largest, abs(y[u]))
+        settled = True
+        for p in range(n):
+            if x[3 * p] < -1e-12 * largest:
+                return False
+            if mu[p] == 0.0:
+                continue
+            # the slip after: (v + W x) along t1, t2, with v = goal - rhs = -rhs there
+            v1, v2 = w[3 * p + 1] - rhs[3 * p + 1], w[3 * p + 2] - rhs[3 * p + 2]
+            if slide[p]:
+                along = v1 * s[p, 0] + v2 * s[p, 1]
+                if along <= 1e-12 * scale:  # the slip reversed: it sticks
+                    slide[p] = False
+                    settled = False
+                    continue
+                speed = math.sqrt(v1 * v1 + v2 * v2)
+                d1, d2 = v1 / speed, v2 / speed
+                if max(abs(d1 - s[p, 0]), abs(d2 - s[p, 1])) > SLIP_TURN:
+                    settled = False
+                s[p, 0], s[p, 1] = d1, d2
+            else:
+                f = math.sqrt(x[3 * p + 1] * x[3 * p + 1] + x[3 * p + 2] * x[3 * p + 2])
+                if f > mu[p] * x[3 * p]:
+                    slide[p] = True
+                    s[p, 0], s[p, 1] = -x[3 * p + 1] / f, -x[3 * p + 2] / f
+                    settled = False
+        if settled:
+            return True
+    return False
 
 
 @kernel(inline="always")

@@ -338,24 +338,35 @@ def _impact_round(bodies: Bodies, c: ContactSet, target, stick=True) -> np.ndarr
     return lam
 
 
+SLIP_ROUNDS = 24  # stick/slip status and slip-direction updates of `_sticking_round`
+SLIP_TURN = 1e-12  # rad: a sliding point's slip direction is settled when it turns less
+
+
 def _sticking_round(bodies: Bodies, c: ContactSet, vn, target, lam_n):
-    """The impulses (k, 3) of one impact round in which every point with friction and a
-    normal impulse (`lam_n`, the frictionless solve's) sticks, solved together with the
-    normal rows: W lam = goal - v on those rows (normal: the restitution target; along
-    the surface: 0), minimum-norm. Applied and returned when it is a solution (normal
-    impulses >= 0, each friction inside its cone, the other points not driven below
-    their targets); where Newton's law with sticking would add kinetic energy, the
-    restitution is scaled down until it adds none. None when it is no solution (bodies
-    unchanged).
+    """The impulses (k, 3) of one impact round solved as one coupled problem: Newton's law
+    on the normal rows of the points with a normal impulse (`lam_n`, the frictionless
+    solve's) and Coulomb friction at those with friction, each point sticking or
+    sliding. First every such point sticks: W lam = goal - v on those rows (normal: the
+    restitution target; along the surface: 0), minimum-norm. Where that friction leaves
+    a point's cone, the point slides instead (`_slipping_solve`): its friction is mu
+    lam_n against its slip after the impact, with the slip direction and which points
+    stick found by updating both until they agree (a point whose slip would reverse
+    sticks again). Applied and returned when it is a solution (normal impulses >= 0,
+    friction in or on its cone, the other points not driven below their targets, no
+    energy gained); where Newton's law with every point sticking would add kinetic
+    energy, the restitution is scaled down until it adds none. None when no solution is
+    found (bodies unchanged): the caller's normal-then-friction passes take the round.
 
     Why: friction solved after the normal impulses changes the normal velocities through
     the coupling of the two at a point whose arm is not along the normal (an edge or a
     corner of a turning box): a box landing on an edge with eps = 0 and sticking friction
     left the ground at 1.1 m/s, and with eps = 0.5 landing from a pivot it lost its whole
-    bounce in the following rounds (each restitution is of the approach then left).
-    Sticking at the point and Newton's law together are the planar rigid impact (for
-    eps = 0 Housner's rocking block: the angular momentum about the landing edge is
-    kept); `tests/test_simultaneous_impacts.py` checks them against it."""
+    bounce in the following rounds (each restitution is of the approach then left); one
+    landing on an edge with too little friction to stick left at 1.48 instead of 1.80 m/s
+    with eps = 1. Newton's law with the point sticking, or sliding at the friction limit,
+    is the planar rigid impact (for eps = 0 and sticking Housner's rocking block: the
+    angular momentum about the landing edge is kept); `tests/test_simultaneous_impacts.py`
+    checks them against it."""
     k = len(c)
     rubbing = (c.friction * lam_n > 0.0)
     active = np.zeros((k, 3), bool)
@@ -394,11 +405,97 @@ def _sticking_round(bodies: Bodies, c: ContactSet, vn, target, lam_n):
     w = v + matmul(W, x)
     scale = 1e-12 * (1.0 + float(np.abs(v).max()) + float(np.abs(goal).max()))
     size = np.sqrt(lam[:, 1] ** 2 + lam[:, 2] ** 2)
-    if (lam[:, 0] < 0.0).any() or (size > c.friction * lam[:, 0]).any() or \
-            (w[0::3][~active[:, 0]] < share * target[~active[:, 0]] - scale).any():
-        return None
+    pulls = (lam[:, 0] < 0.0).any() or \
+        (w[0::3][~active[:, 0]] < share * target[~active[:, 0]] - scale).any()
+    over = size > c.friction * lam[:, 0]
+    if pulls or over.any():  # sticking is no solution: some point slides, if any can
+        if not rubbing.any():
+            return None
+        free = np.zeros(3 * k)
+        free[0::3] = lam_n
+        free = (v + matmul(W, free)).reshape(k, 3)[:, 1:]  # the slip after no friction
+        lam = _slipping_solve(W, v, goal, active[:, 0], rubbing, over, lam, free,
+                              c.friction)
+        if lam is None:
+            return None
     _apply_all(bodies, f, lam, [0, 1, 2])
     return lam
+
+
+def _slipping_solve(W, v, goal, normal, rubbing, over, stuck, free, mu):
+    """The impulses (k, 3) of an impact round with some points sliding: Newton's law on
+    the `normal` rows, points with friction (`rubbing`) either sticking (slip 0, friction
+    inside the cone) or sliding (friction -mu lam_n s along their slip direction s after
+    the impact, the slip not reversed), found by starting from the sticking solve
+    (`stuck`; the points `over` their cones slide, against the friction sticking
+    wanted) and updating statuses and directions until they agree (SLIP_ROUNDS, to
+    SLIP_TURN). Each round is one minimum-norm solve of the square system A y = goal -
+    v on the normal rows and the sticking points' tangent rows, y the normal impulses and
+    the sticking frictions (A = W B, B mapping y to the impulses; not symmetric, so
+    through A^T A's pseudo-inverse), kept only when it meets its rows to 1e-10 of the
+    velocity scale. None when no consistent solution is found, a normal would pull or
+    the impulses would add energy (Newton's law with friction can: the caller's passes
+    never do)."""
+    k = len(normal)
+    # the slip direction after the impact (t1, t2): first that after a frictionless
+    # impact, or where there is none, against the friction sticking wanted (with a face's
+    # singular W the sticking friction's share among the corners is arbitrary: starting
+    # from it, the statuses of a box landing flat while sliding cycled)
+    speed = np.sqrt((free ** 2).sum(axis=1))
+    start = np.where((speed > 0.0)[:, None], free, -stuck[:, 1:])
+    slide = rubbing & ((speed > 0.0) | over)  # every point that slips without friction
+    s = np.zeros((k, 2))
+    s[slide] = start[slide] / np.sqrt((start[slide] ** 2).sum(axis=1))[:, None]
+    rhs_all = goal - v
+    scale = float(np.abs(v).max()) + float(np.abs(goal).max())
+    for _ in range(SLIP_ROUNDS):
+        rows, cols = [], []
+        for i in range(k):
+            if normal[i]:
+                col = np.zeros(3 * k)
+                col[3 * i] = 1.0
+                if slide[i]:
+                    col[3 * i + 1:3 * i + 3] = -mu[i] * s[i]
+                rows.append(3 * i)
+                cols.append(col)
+            if rubbing[i] and not slide[i]:
+                for j in (1, 2):
+                    col = np.zeros(3 * k)
+                    col[3 * i + j] = 1.0
+                    rows.append(3 * i + j)
+                    cols.append(col)
+        B = np.array(cols).T  # (3k, nu)
+        A = matmul(W[rows], B)
+        rhs = rhs_all[rows]
+        y = matmul(_pinv(matmul(A.T, A)[None])[0], matmul(A.T, rhs))
+        if np.abs(matmul(A, y) - rhs).max() > 1e-10 * scale:
+            return None
+        x = matmul(B, y)
+        lam = x.reshape(k, 3)
+        w = v + matmul(W, x)
+        if (lam[:, 0] < -1e-12 * np.abs(y).max()).any() or \
+                (w[0::3][~normal] < goal[0::3][~normal] - 1e-12 * scale).any():
+            return None
+        slip = w.reshape(k, 3)[:, 1:]
+        speed = np.sqrt((slip ** 2).sum(axis=1))
+        size = np.sqrt((lam[:, 1:] ** 2).sum(axis=1))
+        limit = mu * lam[:, 0]
+        over = rubbing & ~slide & (size > limit)
+        back = slide & ((slip * s).sum(axis=1) <= 1e-12 * scale)  # slip reversed: sticks
+        turned = np.zeros(k, bool)
+        new_s = s.copy()
+        moving = slide & ~back
+        new_s[moving] = slip[moving] / speed[moving, None]
+        turned[moving] = np.abs(new_s[moving] - s[moving]).max(axis=1) > SLIP_TURN
+        if not (over.any() or back.any() or turned.any()):
+            work = float(x @ (v + w))  # twice the kinetic energy the impulses add
+            if work > 1e-12 * float(np.abs(x) @ (np.abs(v) + np.abs(w))):
+                return None
+            return lam
+        s[over] = -lam[over, 1:] / size[over, None]
+        s[moving] = new_s[moving]
+        slide = (slide & ~back) | over
+    return None
 
 
 def _levelled(bodies: Bodies, c: ContactSet) -> ContactSet:
