@@ -661,19 +661,22 @@ def _shock_plan(bodies: Bodies, c: ContactSet, movable):
     return plan
 
 
-MOVE_CAP = 10.0  # a block's position correction moving a point more than this times its
-# deepest excess is a near-singular solve, not a correction (`_move_cap`)
+MOVE_CAP = 10.0  # a block's pass may move a body's points this many times its deepest
+MOVE_REACH = 0.5  # excess, or this share of its reach (largest arm), whichever is more
 
 
 def _move_cap(blk, sub: ContactSet, excess, dv, dw) -> np.ndarray:
     """(nb,) factors <= 1 for the position changes (dv, dw) of a block's upper bodies: 1
     unless a body's largest point movement (bound: |dv| + |dw| times its largest arm)
-    exceeds MOVE_CAP times the deepest excess of its contacts, then what brings that bound
-    down to the excess. Why: a body wedged between two lower bodies whose normals are
-    nearly opposite has contact rows with no solution; their minimum-norm least-squares
-    solve (pseudo-inverse, singular values down to 1e-10 of the largest kept) moved a box
-    of a 27-box pile by 50 m and turned one by 1926 rad in one pass (energy +1e4 J, the
-    run stopped by its guard). Ordinary corrections move a point by about its excess."""
+    exceeds both MOVE_CAP times the deepest excess of its contacts and MOVE_REACH times
+    that arm, then what brings it down to the larger of the two. Why: a body wedged
+    between two lower bodies whose normals are nearly opposite has contact rows with (almost)
+    no solution; their minimum-norm least-squares solve (pseudo-inverse, singular values
+    down to 1e-10 of the largest kept) moved a box of a 27-box pile by 50 m and turned one
+    by 1926 rad in one pass (energy +1e4 J, the run stopped by its guard). A body in a
+    steep groove needs a large multiple of its excess (1 / sin of the walls' angle from
+    vertical: 19 times at 3 degrees), a small share of its size: a cap at the excess alone
+    left a sphere 1.3 mm deep in a 3-degree groove (review of the first cap)."""
     _, _, bodies_u, slot_body = blk[:4]
     upper = bodies_u[slot_body]
     arm = np.where((sub.b == upper)[:, None], sub.arm_b, sub.arm_a)
@@ -682,8 +685,9 @@ def _move_cap(blk, sub: ContactSet, excess, dv, dw) -> np.ndarray:
     np.maximum.at(deepest, slot_body, excess)
     np.maximum.at(reach, slot_body, np.sqrt((arm ** 2).sum(axis=1)))
     move = np.sqrt((dv ** 2).sum(axis=1)) + np.sqrt((dw ** 2).sum(axis=1)) * reach
-    wild = move > MOVE_CAP * deepest
-    return np.where(wild, deepest / np.where(wild, move, 1.0), 1.0)
+    cap = np.maximum(MOVE_CAP * deepest, MOVE_REACH * reach)
+    wild = move > cap
+    return np.where(wild, cap / np.where(wild, move, 1.0), 1.0)
 
 
 def _cluster(sub: ContactSet, v, target) -> np.ndarray:
