@@ -514,8 +514,8 @@ IMPACT_GAIN_ROUNDOFF = 1e-12  # an impact's energy change above this share of it
 # impulses' work |lam . v| is a gain, not round-off
 
 
-SLIP_ROUNDS = 24  # stick/slip status and slip-direction updates of `_direct_impact`
-SLIP_TURN = 1e-12  # rad: a sliding point's slip direction is settled when it turns less
+SLIP_ROUNDS = 32  # stick/slip status and slip-direction updates of `_direct_impact`
+SLIP_TURN = 1e-10  # rad: a sliding point's slip direction is settled when it turns less
 
 
 @kernel
@@ -600,6 +600,14 @@ def _direct_impact(K, c0, m, lam, vb, tl, U, Wv):
     x = np.zeros(nf)
     for r in range(nr):
         x[rows[r]] = xs[r]
+    if _cones_left(x, mu, largest, 0.0):
+        # the minimum-norm share among the points is one of many when W is singular (a
+        # face's corners): look for a share inside the cones (`_inside_cones`)
+        _inside_cones(P[0], A[0], xs, rows, nr, mu)
+        largest = 0.0
+        for r in range(nr):
+            x[rows[r]] = xs[r]
+            largest = max(largest, abs(xs[r]))
     over = np.zeros(n_pts, np.bool_)
     stuck = True  # no pull, every friction in its cone
     rubbing = False
@@ -610,12 +618,17 @@ def _direct_impact(K, c0, m, lam, vb, tl, U, Wv):
         if mu[p] > 0.0:
             rubbing = True
             f = math.sqrt(x[3 * p + 1] * x[3 * p + 1] + x[3 * p + 2] * x[3 * p + 2])
-            if f > mu[p] * max(xn, 0.0):
+            if f > mu[p] * max(xn, 0.0) * (1.0 + CONE_ROUNDOFF) + 1e-12 * largest:
                 over[p] = True
                 stuck = False
-    if not stuck:  # some point slides, if any can
-        if not rubbing or not _slip_solve(Wf, rhs, mu, over, x, scale):
+    if not stuck:  # some point slides, if any can: first only those over their cones,
+        if not rubbing:  # then every point that slips (as `solver._sticking_round`)
             return False
+        start = x.copy()
+        if not _slip_solve(Wf, rhs, mu, over, x, scale, False):
+            x[:] = start
+            if not _slip_solve(Wf, rhs, mu, over, x, scale, True):
+                return False
     for p in range(n_pts):
         i = c0 + pq[p]
         for j in range(3):
@@ -624,8 +637,105 @@ def _direct_impact(K, c0, m, lam, vb, tl, U, Wv):
     return True
 
 
+CONE_ROUNDS = 5000  # alternating projections of `_inside_cones`, at most,
+CONE_WINDOW = 100  # and they stop when a window of this many rounds has not shrunk the
+CONE_PROGRESS = 0.9  # step to this share of the last window's (as the located solver's)
+CONE_ROUNDOFF = 1e-9  # relative: friction this little outside its cone is inside
+
+
 @kernel
-def _slip_solve(Wf, rhs, mu, over, x, scale):
+def _cones_left(x, mu, largest, roundoff):
+    """Whether some point's friction in x (3 n,: n, t1, t2 per point) leaves its cone
+    (by more than `roundoff`, relative) or some normal pulls (< -1e-12 largest)."""
+    for p in range(mu.shape[0]):
+        xn = x[3 * p]
+        if xn < -1e-12 * largest:
+            return True
+        if mu[p] > 0.0:
+            f = math.sqrt(x[3 * p + 1] * x[3 * p + 1] + x[3 * p + 2] * x[3 * p + 2])
+            if f > mu[p] * max(xn, 0.0) * (1.0 + roundoff):
+                return True
+    return False
+
+
+@kernel
+def _inside_cones(P, A, xs, rows, nr, mu):
+    """xs (nr,) on the rows `rows` (3 p + j) replaced by impulses that solve the same
+    equations (A xs = b, P the pseudo-inverse of A) with every point's friction inside
+    its cone, if alternating projections find them (von Neumann's method between the
+    solutions and the cones, to CONE_ROUNDOFF, at most CONE_ROUNDS, stopped when the
+    steps stop shrinking); else the last iterate, which the caller's cone check rejects. As the located solver's `solver._inside_cones`: a
+    box landing flat and sticking with its load on the leading edge got minimum-norm
+    friction outside the trailing corners' cones."""
+    b = np.empty(nr)
+    for r in range(nr):
+        acc = 0.0
+        for t in range(nr):
+            acc += A[r, t] * xs[t]
+        b[r] = acc
+    res = np.empty(nr)
+    before = np.empty(nr)
+    last = math.inf
+    for round_ in range(CONE_ROUNDS):
+        for q in range(nr):
+            before[q] = xs[q]
+        r = 0
+        while r < nr:  # onto the cones (normals >= 0, |t| <= mu n)
+            m = mu[rows[r] // 3]
+            if m > 0.0 and r + 2 < nr and rows[r + 1] == rows[r] + 1:
+                n, t1, t2 = xs[r], xs[r + 1], xs[r + 2]
+                t = math.sqrt(t1 * t1 + t2 * t2)
+                if t > m * n:
+                    if m * t <= -n:
+                        xs[r] = xs[r + 1] = xs[r + 2] = 0.0
+                    else:
+                        n2 = (n + m * t) / (1.0 + m * m)
+                        f = m * n2 / t
+                        xs[r], xs[r + 1], xs[r + 2] = n2, f * t1, f * t2
+                r += 3
+            else:
+                xs[r] = max(xs[r], 0.0)
+                r += 1
+        for q in range(nr):  # back onto the solutions: xs - P (A xs - b)
+            acc = -b[q]
+            for t in range(nr):
+                acc += A[q, t] * xs[t]
+            res[q] = acc
+        largest = 0.0
+        for q in range(nr):
+            acc = 0.0
+            for t in range(nr):
+                acc += P[q, t] * res[t]
+            xs[q] -= acc
+            largest = max(largest, abs(xs[q]))
+        inside = True
+        r = 0
+        while r < nr:
+            m = mu[rows[r] // 3]
+            if xs[r] < -1e-12 * largest:
+                inside = False
+                break
+            if m > 0.0 and r + 2 < nr and rows[r + 1] == rows[r] + 1:
+                t = math.sqrt(xs[r + 1] * xs[r + 1] + xs[r + 2] * xs[r + 2])
+                if t > m * max(xs[r], 0.0) * (1.0 + CONE_ROUNDOFF) + 1e-12 * largest:
+                    inside = False  # (+ a corner left with no load: 0 +- round-off)
+                    break
+                r += 3
+            else:
+                r += 1
+        if inside:
+            return
+        if (round_ + 1) % CONE_WINDOW == 0:  # stop when the steps stop shrinking
+            step = 0.0
+            for q in range(nr):
+                step = max(step, abs(xs[q] - before[q]))
+            if step >= CONE_PROGRESS * last:
+                return
+            last = step
+
+
+@kernel
+def _slip_solve(Wf, rhs, mu, over, x, scale, every):
     """The impulses x (3 n,) of an impact with some points sliding: Newton's law on the
     normal rows, each point with friction sticking (slip 0, friction inside its cone) or
     sliding (friction -mu x_n s, s its slip direction after the impact, not reversed),
@@ -638,9 +748,11 @@ def _slip_solve(Wf, rhs, mu, over, x, scale):
     sticking points' tangent rows, y the normal impulses and sticking frictions (A =
     Wf B, B mapping y to the impulses; not symmetric, so through A^T A's
     pseudo-inverse), kept when it meets its rows to 1e-9 of `scale`. True with x the
-    solution, or False (x undefined) when none is found or a normal would pull. Wf
-    (3 n, 3 n): the Delassus matrix over every point's n, t1, t2; rhs (3 n,): goal - v.
-    As the located solver's `solver._slipping_solve`."""
+    solution, or False (x undefined) when none is found. `every`: every point that slips
+    without friction starts sliding, else only those `over` their cones. A point whose
+    normal would pull leaves the solve (the most pulling ones), and must then not be
+    driven below its target. Wf (3 n, 3 n): the Delassus matrix over every point's n,
+    t1, t2; rhs (3 n,): goal - v. As the located solver's `solver._slipping_solve`."""
     n = mu.shape[0]
     nf = 3 * n
     # the frictionless impact (normal rows, minimum-norm) and the slip after it
@@ -664,7 +776,7 @@ def _slip_solve(Wf, rhs, mu, over, x, scale):
             v1 += Wf[3 * p + 1, 3 * p2] * xn[p2]
             v2 += Wf[3 * p + 2, 3 * p2] * xn[p2]
         speed = math.sqrt(v1 * v1 + v2 * v2)
-        if speed > 0.0:
+        if speed > 0.0 and (every or over[p]):
             slide[p] = True
             s[p, 0], s[p, 1] = v1 / speed, v2 / speed
         elif over[p]:
@@ -673,9 +785,12 @@ def _slip_solve(Wf, rhs, mu, over, x, scale):
             s[p, 0], s[p, 1] = -x[3 * p + 1] / f, -x[3 * p + 2] / f
     rows = np.empty(nf, np.int64)
     w = np.empty(nf)
+    pushing = np.ones(n, np.bool_)
     for _ in range(SLIP_ROUNDS):
         nr = 0
         for p in range(n):
+            if not pushing[p]:
+                continue
             rows[nr] = 3 * p
             nr += 1
             if mu[p] > 0.0 and not slide[p]:
@@ -727,12 +842,28 @@ def _slip_solve(Wf, rhs, mu, over, x, scale):
                 acc += Wf[r, c] * x[c]
             w[r] = acc
         largest = 0.0
+        least = 0.0
         for u in range(nr):
             largest = max(largest, abs(y[u]))
+            if rows[u] % 3 == 0:
+                least = min(least, y[u])
+        if least < -1e-12 * largest:  # the most pulling points leave (no impulse there)
+            left = 0
+            for p in range(n):
+                if pushing[p] and x[3 * p] <= least + 1e-9 * abs(least) + 1e-15 * largest:
+                    pushing[p] = False
+                    slide[p] = False
+                if pushing[p]:
+                    left += 1
+            if left == 0:
+                return False
+            continue
         settled = True
         for p in range(n):
-            if x[3 * p] < -1e-12 * largest:
-                return False
+            if not pushing[p]:  # it left: not driven below its target
+                if w[3 * p] - rhs[3 * p] < -1e-12 * scale:
+                    return False
+                continue
             if mu[p] == 0.0:
                 continue
             # the slip after: (v + W x) along t1, t2, with v = goal - rhs = -rhs there
