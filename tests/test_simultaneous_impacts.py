@@ -370,6 +370,32 @@ def _landing_scene(rng, pivoting):
     return R, size, m, I, corners, pivot, landing, omega
 
 
+def _landing_motion(rng, pivoting):
+    """`_landing_scene` with its motion: turning about the pivot (`pivoting`) or any
+    planar motion (turning about the edge's direction, moving across it): (R, size, m, I,
+    corners, pivot, landing, omega, vel, t the direction across the edges, the landing
+    edge's mid-point, change(P, at) -> (velocity change at `at`, dv, dw) of an impulse P
+    there)."""
+    n = np.array([0.0, 1.0, 0.0])
+    R, size, m, I, corners, pivot, landing, omega = _landing_scene(rng, pivoting)
+    p_land = 0.5 * (corners[landing[0]] + corners[landing[1]])
+    p_pivot = 0.5 * (corners[pivot[0]] + corners[pivot[1]])
+    t = (p_land - p_pivot) - n * ((p_land - p_pivot) @ n)
+    t /= np.linalg.norm(t)
+    if pivoting:
+        vel = np.cross(omega, -p_pivot)
+    else:
+        omega = omega * float(rng.uniform(-2.0, 2.0))
+        vel = n * float(rng.uniform(-5.0, 0.0)) + t * float(rng.uniform(-3.0, 3.0))
+    Iinv = np.linalg.inv(I)
+
+    def change(P, at):
+        dv, dw = P / m, Iinv @ np.cross(at, P)
+        return dv + np.cross(dw, at), dv, dw
+
+    return R, size, m, I, corners, pivot, landing, omega, vel, t, p_land, change
+
+
 @pytest.mark.parametrize("mode", ["located", "stepped"])
 @pytest.mark.parametrize("pivoting", [True, False], ids=["from-a-pivot", "in-flight"])
 @pytest.mark.parametrize("seed", range(40))
@@ -391,29 +417,12 @@ def test_a_whole_step_of_an_edge_landing_matches_the_planar_impact(seed, pivotin
     sticking = seed % 8 < 4
     n = np.array([0.0, 1.0, 0.0])
     for _ in range(1000):
-        R, size, m, I, corners, pivot, landing, omega = _landing_scene(rng, pivoting)
-        p_land = 0.5 * (corners[landing[0]] + corners[landing[1]])
-        p_pivot = 0.5 * (corners[pivot[0]] + corners[pivot[1]])
-        t = (p_land - p_pivot) - n * ((p_land - p_pivot) @ n)
-        t /= np.linalg.norm(t)
-        if pivoting:
-            vel = np.cross(omega, -p_pivot)
-        else:
-            omega = omega * float(rng.uniform(-2.0, 2.0))
-            vel = n * float(rng.uniform(-5.0, 0.0)) + t * float(rng.uniform(-3.0, 3.0))
-        Iinv = np.linalg.inv(I)
-
-        def change(P, at):
-            dv, dw = P / m, Iinv @ np.cross(at, P)
-            return dv + np.cross(dw, at), dv, dw
-
-        u = vel + np.cross(omega, p_land)
-        vn = float(u @ n)
+        R, size, m, I, corners, pivot, landing, omega, vel, t, p_land, change = \
+            _landing_motion(rng, pivoting)
+        u, vn, (P_n, P_t) = _sticking_edge(change, p_land, t, vel, omega, eps)
         if vn >= -0.05:
             continue  # not landing (or too slowly to be an impact: rest_speed)
         if sticking:
-            K = np.array([[change(d1, p_land)[0] @ d2 for d1 in (n, t)] for d2 in (n, t)])
-            P_n, P_t = np.linalg.solve(K, np.array([-eps * vn - vn, -(u @ t)]))
             mu = float(2.0 * abs(P_t) / P_n + 0.1)
         else:
             P_n = (-eps * vn - vn) / (change(n, p_land)[0] @ n)
@@ -430,12 +439,7 @@ def test_a_whole_step_of_an_edge_landing_matches_the_planar_impact(seed, pivotin
             break
     else:
         pytest.fail("no landing drawn in 1000 tries")
-    s = _one_step_on_ground(mode, eps, mu, m, R, size, float(-corners[:, 1].min()), vel,
-                            omega)
-    scale = abs(vn)
-    assert np.abs(s.body_vel[1] - v_after).max() <= 1e-9 * scale, (s.body_vel[1], v_after)
-    assert np.abs(s.body_angvel[1] - w_after).max() * np.abs(corners).max() <= 1e-9 * scale, \
-        (s.body_angvel[1], w_after)
+    _lands_as(mode, eps, mu, m, R, size, corners, vel, omega, abs(vn), v_after, w_after)
 
 
 @pytest.mark.parametrize("mode", ["located", "stepped"])
@@ -459,28 +463,11 @@ def test_a_whole_step_of_an_edge_landing_sliding_matches_the_planar_impact(seed,
     eps = float((0.0, 0.3, 0.5, 1.0)[seed % 4])
     n = np.array([0.0, 1.0, 0.0])
     for _ in range(1000):
-        R, size, m, I, corners, pivot, landing, omega = _landing_scene(rng, pivoting)
-        p_land = 0.5 * (corners[landing[0]] + corners[landing[1]])
-        p_pivot = 0.5 * (corners[pivot[0]] + corners[pivot[1]])
-        t = (p_land - p_pivot) - n * ((p_land - p_pivot) @ n)
-        t /= np.linalg.norm(t)
-        if pivoting:
-            vel = np.cross(omega, -p_pivot)
-        else:
-            omega = omega * float(rng.uniform(-2.0, 2.0))
-            vel = n * float(rng.uniform(-5.0, 0.0)) + t * float(rng.uniform(-3.0, 3.0))
-        Iinv = np.linalg.inv(I)
-
-        def change(P, at):
-            dv, dw = P / m, Iinv @ np.cross(at, P)
-            return dv + np.cross(dw, at), dv, dw
-
-        u = vel + np.cross(omega, p_land)
-        vn = float(u @ n)
+        R, size, m, I, corners, pivot, landing, omega, vel, t, p_land, change = \
+            _landing_motion(rng, pivoting)
+        u, vn, (P_n, P_t) = _sticking_edge(change, p_land, t, vel, omega, eps)
         if vn >= -0.05:
             continue  # not landing (or too slowly to be an impact: rest_speed)
-        K = np.array([[change(d1, p_land)[0] @ d2 for d1 in (n, t)] for d2 in (n, t)])
-        P_n, P_t = np.linalg.solve(K, np.array([-eps * vn - vn, -(u @ t)]))
         if not P_n > 0.0 or abs(P_t) <= 1e-3 * P_n:
             continue  # no friction needed to stick: nothing slides
         sigma = 1.0 if P_t > 0.0 else -1.0
@@ -501,12 +488,7 @@ def test_a_whole_step_of_an_edge_landing_sliding_matches_the_planar_impact(seed,
             break
     else:
         pytest.fail("no landing drawn in 1000 tries")
-    s = _one_step_on_ground(mode, eps, mu, m, R, size, float(-corners[:, 1].min()), vel,
-                            omega)
-    scale = abs(vn)
-    assert np.abs(s.body_vel[1] - v_after).max() <= 1e-9 * scale, (s.body_vel[1], v_after)
-    assert np.abs(s.body_angvel[1] - w_after).max() * np.abs(corners).max() <= 1e-9 * scale, \
-        (s.body_angvel[1], w_after)
+    _lands_as(mode, eps, mu, m, R, size, corners, vel, omega, abs(vn), v_after, w_after)
 
 
 @pytest.mark.parametrize("mode", ["located", "stepped"])
@@ -562,20 +544,9 @@ def test_a_whole_step_of_a_flat_landing_that_friction_stops(seed, mode):
     of these 40."""
     rng = np.random.default_rng(9300 + seed)
     eps = float((0.0, 0.3, 0.5, 1.0)[seed % 4])
-    for _ in range(1000):
-        size, m, R, corners = _face_down_pose(rng)
-        h = float(-corners[:, 1].min())
-        e1, e2 = corners[1] - corners[0], corners[2] - corners[0]
-        vn = -float(rng.uniform(0.1, 5.0))
-        mu = float(np.exp(rng.uniform(np.log(0.05), np.log(1.5))))
-        s = rng.normal(size=2)
-        s /= np.linalg.norm(s)
-        ut = s * mu * (1.0 + eps) * abs(vn) * float(rng.uniform(0.2, 0.98))
-        d = h * float(np.linalg.norm(ut)) / ((1.0 + eps) * abs(vn)) * np.array([s[0], 0.0, s[1]])
-        if all(abs(d @ e) <= 0.4 * (e @ e) for e in (e1, e2)):  # within 0.8 of the face
-            break
-    else:
-        pytest.fail("no landing drawn in 1000 tries")
+    size, m, R, corners, h, vn, mu, s, ut = _flat_landing(
+        rng, eps, 1.5, (0.2, 0.98), lambda h, mu, ut, vn: h * float(np.linalg.norm(ut)) /
+        ((1.0 + eps) * abs(vn)), 0.8)
     st = _one_step_on_ground(mode, eps, mu, m, R, size, h, np.array([ut[0], vn, ut[1]]),
                              np.zeros(3))
     scale = abs(vn)
@@ -602,21 +573,9 @@ def test_a_whole_step_of_a_flat_landing_sliding_on(seed, mode):
     stepped mode 4 (its sweeps over the four corners stopped short)."""
     rng = np.random.default_rng(9900 + seed)
     eps = float((0.0, 0.3, 0.5, 1.0)[seed % 4])
-    for _ in range(1000):
-        size, m, R, corners = _face_down_pose(rng)
-        h = float(-corners[:, 1].min())
-        e1, e2 = corners[1] - corners[0], corners[2] - corners[0]
-        vn = -float(rng.uniform(0.1, 5.0))
-        mu = float(np.exp(rng.uniform(np.log(0.05), np.log(1.0))))
-        s = rng.normal(size=2)
-        s /= np.linalg.norm(s)
-        stop = mu * (1.0 + eps) * abs(vn)
-        ut = s * stop * float(rng.uniform(1.001, 3.0))
-        d = h * mu * np.array([s[0], 0.0, s[1]])  # the normal impulses' centre, from the face's
-        if all(abs(d @ e) <= 0.25 * (e @ e) for e in (e1, e2)):  # within half of the face
-            break
-    else:
-        pytest.fail("no landing drawn in 1000 tries")
+    size, m, R, corners, h, vn, mu, s, ut = _flat_landing(
+        rng, eps, 1.0, (1.001, 3.0), lambda h, mu, ut, vn: h * mu, 0.5)
+    stop = mu * (1.0 + eps) * abs(vn)
     s_ = _one_step_on_ground(mode, eps, mu, m, R, size, h, np.array([ut[0], vn, ut[1]]),
                              np.zeros(3))
     after = ut - stop * s
@@ -625,6 +584,47 @@ def test_a_whole_step_of_a_flat_landing_sliding_on(seed, mode):
         (s_.body_vel[1], after)
     assert np.abs(s_.body_angvel[1]).max() * np.abs(corners).max() <= 1e-9 * scale, \
         s_.body_angvel[1]
+
+
+def _sticking_edge(change, p_land, t, vel, omega, eps):
+    """The landing edge's velocity u, its normal part v_n, and the planar impact (P_n,
+    P_t) that leaves it at (0, -eps v_n) across and along the normal (+y)."""
+    n = np.array([0.0, 1.0, 0.0])
+    u = vel + np.cross(omega, p_land)
+    vn = float(u @ n)
+    K = np.array([[change(d1, p_land)[0] @ d2 for d1 in (n, t)] for d2 in (n, t)])
+    return u, vn, np.linalg.solve(K, np.array([-eps * vn - vn, -(u @ t)]))
+
+
+def _lands_as(mode, eps, mu, m, R, size, corners, vel, omega, speed, v_after, w_after):
+    """One step of the landing (`_one_step_on_ground`, the face's corners on the ground)
+    leaves the box at v_after, w_after, to 1e-9 of the approach speed."""
+    s = _one_step_on_ground(mode, eps, mu, m, R, size, float(-corners[:, 1].min()), vel,
+                            omega)
+    assert np.abs(s.body_vel[1] - v_after).max() <= 1e-9 * speed, (s.body_vel[1], v_after)
+    assert np.abs(s.body_angvel[1] - w_after).max() * np.abs(corners).max() <= 1e-9 * speed, \
+        (s.body_angvel[1], w_after)
+
+
+def _flat_landing(rng, eps, mu_top, shares, centre, within):
+    """A box about to land flat on a face (`_face_down_pose`), sliding: (size, m, R,
+    corners, h its centre's height, v_n, mu log-uniform in [0.05, mu_top], s the slip's
+    unit direction (x, z), u_t (x, z) at `shares` of the slip friction stops, mu (1 +
+    eps) |v_n|), drawn again until the normal impulses' centre, centre(h, mu, u_t, v_n)
+    from the face's centre along s, lies within `within` of the face."""
+    for _ in range(1000):
+        size, m, R, corners = _face_down_pose(rng)
+        h = float(-corners[:, 1].min())
+        e1, e2 = corners[1] - corners[0], corners[2] - corners[0]
+        vn = -float(rng.uniform(0.1, 5.0))
+        mu = float(np.exp(rng.uniform(np.log(0.05), np.log(mu_top))))
+        s = rng.normal(size=2)
+        s /= np.linalg.norm(s)
+        ut = s * mu * (1.0 + eps) * abs(vn) * float(rng.uniform(*shares))
+        d = centre(h, mu, ut, vn) * np.array([s[0], 0.0, s[1]])
+        if all(abs(d @ e) <= within / 2 * (e @ e) for e in (e1, e2)):
+            return size, m, R, corners, h, vn, mu, s, ut
+    pytest.fail("no landing drawn in 1000 tries")
 
 
 def _one_step_on_ground(mode, eps, mu, m, R, size, height, vel, omega):
