@@ -600,7 +600,8 @@ def _direct_impact(K, c0, m, lam, vb, tl, U, Wv):
     x = np.zeros(nf)
     for r in range(nr):
         x[rows[r]] = xs[r]
-    if _cones_left(x, mu, largest, 0.0):
+    over = np.zeros(n_pts, np.bool_)
+    if not _in_cones(x, mu, 1e-12 * largest, 0.0, 0.0, over):
         # the minimum-norm share among the points is one of many when W is singular (a
         # face's corners): look for a share inside the cones (`_inside_cones`)
         _inside_cones(P[0], A[0], xs, rows, nr, mu)
@@ -608,21 +609,13 @@ def _direct_impact(K, c0, m, lam, vb, tl, U, Wv):
         for r in range(nr):
             x[rows[r]] = xs[r]
             largest = max(largest, abs(xs[r]))
-    over = np.zeros(n_pts, np.bool_)
-    stuck = True  # no pull, every friction in its cone
-    rubbing = False
-    for p in range(n_pts):
-        xn = x[3 * p]
-        if xn < -1e-12 * largest:
-            stuck = False
-        if mu[p] > 0.0:
-            rubbing = True
-            f = math.sqrt(x[3 * p + 1] * x[3 * p + 1] + x[3 * p + 2] * x[3 * p + 2])
-            if f > mu[p] * max(xn, 0.0) * (1.0 + CONE_ROUNDOFF) + 1e-12 * largest:
-                over[p] = True
-                stuck = False
-    if not stuck:  # some point slides, if any can: first only those over their cones,
-        if not rubbing:  # then every point that slips (as `solver._sticking_round`)
+    if not _in_cones(x, mu, 1e-12 * largest, CONE_ROUNDOFF, 1e-12 * largest, over):
+        # some point slides, if any can: first only those over their cones, then every
+        # point that slips (as `solver._sticking_round`)
+        rubbing = False
+        for p in range(n_pts):
+            rubbing = rubbing or mu[p] > 0.0
+        if not rubbing:
             return False
         start = x.copy()
         if not _slip_solve(Wf, rhs, mu, over, x, scale, False):
@@ -644,18 +637,22 @@ CONE_ROUNDOFF = 1e-9  # relative: friction this little outside its cone is insid
 
 
 @kernel
-def _cones_left(x, mu, largest, roundoff):
-    """Whether some point's friction in x (3 n,: n, t1, t2 per point) leaves its cone
-    (by more than `roundoff`, relative) or some normal pulls (< -1e-12 largest)."""
+def _in_cones(x, mu, pull, roundoff, tiny, over):
+    """Whether x (3 n,: n, t1, t2 per point) pulls nowhere (no normal below -pull) and
+    has every friction in its cone (|t| <= mu max(n, 0) (1 + roundoff) + tiny); over
+    (n,) bool: set where a friction leaves its cone."""
+    inside = True
     for p in range(mu.shape[0]):
         xn = x[3 * p]
-        if xn < -1e-12 * largest:
-            return True
+        over[p] = False
+        if xn < -pull:
+            inside = False
         if mu[p] > 0.0:
             f = math.sqrt(x[3 * p + 1] * x[3 * p + 1] + x[3 * p + 2] * x[3 * p + 2])
-            if f > mu[p] * max(xn, 0.0) * (1.0 + roundoff):
-                return True
-    return False
+            if f > mu[p] * max(xn, 0.0) * (1.0 + roundoff) + tiny:
+                over[p] = True
+                inside = False
+    return inside
 
 
 @kernel

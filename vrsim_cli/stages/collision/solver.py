@@ -448,17 +448,16 @@ def _inside_cones(inverse, A, x, k, active, mu):
     """Impulses on the rows `active` (k, 3) that solve the same equations as x (A x = b,
     A = W on those rows, inverse its pseudo-inverse) with no normal pulling and every
     point's friction inside its cone |lam_t| <= mu lam_n, if alternating projections find
-    them (von Neumann's
-    method for two convex sets, the solutions and the cones: to CONE_ROUNDOFF, at most
-    CONE_ROUNDS, stopped when the steps stop shrinking); else the last iterate, which the
-    caller rejects. Slow where the cones touch the solutions at a small angle: 400 rounds
-    left a box landing on a face with its corners up to 2 mm apart sliding, where ~1000
-    found it sticking as with the corners level (a jump of 195 times the continuity
-    bound of `tests/test_simultaneous_impacts.py`). Why: a box landing
-    flat and sticking, its load shifted to the leading edge, got minimum-norm friction
-    that left the trailing corners' cones, and was solved as sliding (wrong by up to
-    0.63 of its speed) where a sticking share exists (a review's 22 of 100 such
-    landings)."""
+    them (von Neumann's method for two convex sets, the solutions and the cones: to
+    CONE_ROUNDOFF, at most CONE_ROUNDS, stopped when the steps stop shrinking); else the
+    last iterate, which the caller rejects. Why: a box landing flat and sticking, its
+    load shifted to the leading edge, got minimum-norm friction that left the trailing
+    corners' cones, and was solved as sliding (wrong by up to 0.63 of its speed) where a
+    sticking share exists (a review's 22 of 100 such landings). Slow where the cones
+    touch the solutions at a small angle: 400 rounds left a box landing on a face with
+    its corners up to 2 mm apart sliding, where ~1000 found it sticking as with the
+    corners level (a jump of 195 times the continuity bound of
+    `tests/test_simultaneous_impacts.py`)."""
     b = matmul(A, x)
     rows = np.flatnonzero(active.ravel())
     point, along = rows // 3, rows % 3
