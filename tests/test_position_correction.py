@@ -98,3 +98,56 @@ bodies:
 """)
     assert abs(s.body_pos[2][1] - rest) <= 1e-6, (s.body_pos[2], rest)
     assert abs(s.body_pos[2][0]) <= 1e-6 and abs(s.body_pos[2][2]) <= 1e-6, s.body_pos[2]
+
+
+def _straddling(rng):
+    """A box (body 2, 0.5-5 kg, sides 0.1-0.5 m, unturned) resting on two fixed bodies:
+    on body 0 (normal +y) with the 4 corners of its bottom face but a strip of width
+    w = 0.5-5 mm, and on body 1 (normal tilted 0-10 mrad about a random horizontal axis)
+    with the 4 corners of that strip. Depths -2-10 mm, each drawn (uneven, as a pile
+    leaves them). Returns (bodies, contacts, depths, mass, inertia (3, 3), normals)."""
+    m = float(rng.uniform(0.5, 5.0))
+    size = rng.uniform(0.1, 0.5, 3)
+    inertia = np.diag(m / 12.0 * np.array([size[1] ** 2 + size[2] ** 2,
+                                           size[0] ** 2 + size[2] ** 2,
+                                           size[0] ** 2 + size[1] ** 2]))
+    inv_i = np.stack([np.zeros((3, 3)), np.zeros((3, 3)), np.linalg.inv(inertia)])
+    bodies = solver.Bodies(np.array([0.0, 0.0, 1.0 / m]), inv_i, np.zeros((3, 3)),
+                           np.zeros((3, 3)), np.array([[0.0, -1.0, 0.0], [1.0, -1.0, 0.0],
+                                                       [0.0, 0.0, 0.0]]))
+    w = float(rng.uniform(5e-4, 5e-3))
+    hx, hy, hz = size / 2
+    edge = hx - w
+    points = np.array([[x, -hy, z] for x in (-hx, edge) for z in (-hz, hz)] +
+                      [[x, -hy, z] for x in (edge, hx) for z in (-hz, hz)])
+    tilt = float(rng.uniform(0.0, 1e-2))
+    axis = np.array([np.cos(a := rng.uniform(0, 2 * np.pi)), 0.0, np.sin(a)])
+    up = np.array([0.0, 1.0, 0.0])
+    tilted = np.cos(tilt) * up + np.sin(tilt) * np.cross(axis, up)
+    normals = np.array([up] * 4 + [tilted] * 4)
+    depth = rng.uniform(-2e-3, 1e-2, 8)
+    c = solver.prepare(bodies, np.array([0] * 4 + [1] * 4), np.full(8, 2), points, normals,
+                       depth, np.zeros(8), np.full(8, 0.5))
+    return bodies, c, depth, m, inertia, normals
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_a_box_straddling_two_bodies_moves_no_more_than_a_lift_would(seed):
+    """One position pass on a box straddling two fixed bodies (`_straddling`): the pass
+    is the least displacement, in the kinetic-energy metric M, whose contacts' normal
+    displacements remove their excess (a QP whose optimality conditions are the
+    position LCP). Lifting the box straight up by d / min n_y (d the deepest depth)
+    removes every excess, so the pass's M-norm is at most that lift's: m |dp|^2 +
+    dth.I.dth <= m (d / min n_y)^2 (1e-9 relative for round-off). On the tree before,
+    the rows with excess were solved as equalities by least squares, and nearly
+    dependent rows (the strip's corners next to the face's, normals 8 mrad apart) made
+    a cube turn 0.8 rad and rise 11 cm in a 32-box grid."""
+    rng = np.random.default_rng(400 + seed)
+    bodies, c, depth, m, inertia, normals = _straddling(rng)
+    dpos, dtheta = solver.correct_positions(bodies, c, 0.0, 1)
+    lift = depth.max() / normals[:, 1].min()
+    cost = m * float(dpos[2] @ dpos[2]) + float(dtheta[2] @ inertia @ dtheta[2])
+    assert cost <= m * lift ** 2 * (1.0 + 1e-9), (cost, m * lift ** 2)
+    # and it removes the excess it was asked to (to the LCP's tolerance)
+    moved = (c.normal * dpos[c.b]).sum(1) + (c.jac_b[:, 0] * dtheta[c.b]).sum(1)
+    assert (moved >= depth - 1e-9).all(), moved - depth
