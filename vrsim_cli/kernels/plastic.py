@@ -119,3 +119,64 @@ def plastic_sweeps(a, b, dirs, jac_a, jac_b, lin_a, lin_b, rot_a, rot_b, mu, vel
         if change <= tol:
             break
     return sweeps
+
+
+@kernel
+def dense_sweeps(A, target, mu, v, lam, max_sweeps, rel_tol):
+    """Projected Gauss-Seidel on one body's contact problem in Delassus form (the
+    fallback of `solver._patch`): A (3k, 3k) the Delassus matrix along (n, t1, t2) per
+    point, v (3k,) the velocities (updated), lam (3k,) the impulses (updated), target
+    (k,) allowed approach, mu (k,). Per point: the normal impulse that meets v_n =
+    -target, clamped at >= 0; then the 2 x 2 tangent block solved and the friction
+    scaled into mu lam_n, skipped when it would raise lam.v + lam.A lam / 2 unless the
+    old friction has left a cone that shrank. Stops when no impulse changes by more
+    than rel_tol (1 + the largest impulse). Returns 1 if it stopped so, else 0."""
+    k = target.shape[0]
+    m = 3 * k
+    for _ in range(max_sweeps):
+        change = 0.0
+        for i in range(k):
+            n = 3 * i
+            if A[n, n] > 0.0:
+                new = lam[n] - (v[n] + target[i]) / A[n, n]
+                if new < 0.0:
+                    new = 0.0
+                d = new - lam[n]
+                if d != 0.0:
+                    for r in range(m):
+                        v[r] += A[r, n] * d
+                    lam[n] = new
+                    change = max(change, abs(d))
+            t1, t2 = n + 1, n + 2
+            o1, o2 = lam[t1], lam[t2]
+            limit = mu[i] * lam[n]
+            a11, a12, a21, a22 = A[t1, t1], A[t1, t2], A[t2, t1], A[t2, t2]
+            if limit <= 0.0:
+                n1, n2 = 0.0, 0.0
+            else:
+                det = a11 * a22 - a12 * a21
+                if abs(det) > 1e-300:
+                    s1 = (a22 * v[t1] - a12 * v[t2]) / det
+                    s2 = (a11 * v[t2] - a21 * v[t1]) / det
+                else:
+                    s1 = v[t1] / a11 if a11 > 0.0 else 0.0
+                    s2 = v[t2] / a22 if a22 > 0.0 else 0.0
+                n1, n2 = o1 - s1, o2 - s2
+                size = math.sqrt(n1 * n1 + n2 * n2)
+                if size > limit:
+                    n1, n2 = n1 * (limit / size), n2 * (limit / size)
+            d1, d2 = n1 - o1, n2 - o2
+            if d1 != 0.0 or d2 != 0.0:
+                work = d1 * (v[t1] + 0.5 * (a11 * d1 + a12 * d2)) + \
+                    d2 * (v[t2] + 0.5 * (a21 * d1 + a22 * d2))
+                if work <= 0.0 or o1 * o1 + o2 * o2 > limit * limit:
+                    for r in range(m):
+                        v[r] += A[r, t1] * d1 + A[r, t2] * d2
+                    lam[t1], lam[t2] = n1, n2
+                    change = max(change, max(abs(d1), abs(d2)))
+        largest = 0.0
+        for r in range(m):
+            largest = max(largest, abs(lam[r]))
+        if change <= rel_tol * (1.0 + largest):
+            return 1
+    return 0

@@ -930,8 +930,9 @@ def _patch_blocks(bodies: Bodies, blk, target, lam, start=None, kink=None) -> No
     """The contacts of one level block, each with a frozen (lower) other body, solved
     exactly per upper body u (`_patch`) from u's velocity without their impulses: the
     iterations' impulses of these rows (lam, (k, 3) along n, t1, t2) are taken back and
-    replaced by the patch solution. target: (len(rows),) m/s allowed approach. start,
-    kink: see `solve_resting`."""
+    replaced by the patch solution, unless the patch has none (`_patch`, strict: the
+    frozen bodies' motion may ask for the impossible); then the iterations' stand.
+    target: (len(rows),) m/s allowed approach. start, kink: see `solve_resting`."""
     rows, sub, bodies_u, slot_body, slot, WJt, A, _ = blk
     v_now = velocity_along(bodies, sub)
     v_start = None
@@ -945,7 +946,9 @@ def _patch_blocks(bodies: Bodies, blk, target, lam, start=None, kink=None) -> No
         old = lam[rows[mem]]
         pre = v_now[mem] - matmul(Ab, old.ravel()).reshape(-1, 3)
         new, slid = _patch(Ab, pre, target[mem], sub.friction[mem],
-                           None if v_start is None else v_start[mem, 1:])
+                           None if v_start is None else v_start[mem, 1:], strict=True)
+        if new is None:
+            continue  # no solution against the frozen bodies: the iterations' stand
         delta = matmul(WJt[i][:, idx], (new - old).ravel())
         if slid is not None and kink is not None:
             frac, lam_slide = slid  # the velocity when the slip stopped: linear in time
@@ -972,7 +975,7 @@ def _min_norm(M, r) -> np.ndarray:
 PATCH_ROUNDS = 64  # active-set and slip-direction rounds of one body's patch solve
 
 
-def _patch(A, pre, target, mu, slip0=None):
+def _patch(A, pre, target, mu, slip0=None, strict=False):
     """Impulses (k, 3) along (n, t1, t2) at the k contacts of one body with fixed (or
     frozen) bodies, normal and friction solved together: the relative velocity after is
     v = pre + A lam (A: (3k, 3k) Delassus matrix, pre: (k, 3) velocity without them), and
@@ -1000,7 +1003,10 @@ def _patch(A, pre, target, mu, slip0=None):
     step (constant forces: every velocity linear in time), and slid = (fraction of the
     step at which that slip reaches 0, the impulses (k, 3) of that sliding solution).
     The caller moves the body with the two velocity ramps meeting there, not with one
-    (the ball thrown sliding rolls from t* = 2 v0 / (7 mu g), inside a step)."""
+    (the ball thrown sliding rolls from t* = 2 v0 / (7 mu g), inside a step).
+
+    strict: when the statuses do not settle and the projected sweeps do not solve the
+    problem either (`_projected_sweeps`), return (None, None) instead of their impulses."""
     k = len(pre)
     scale = 1.0 + float(np.abs(pre).max()) + float(np.abs(target).max())
     tol_v = 1e-12 * scale
@@ -1064,7 +1070,8 @@ def _patch(A, pre, target, mu, slip0=None):
     # indeterminate face that holds, a lightly loaded corner may carry more than its own
     # cone while the face's total is inside; clamping it there let held boxes slide)
     if not settled and not _admissible(A, pre, target, lam, tol_v):
-        return _projected_sweeps(A, pre, target, mu), None
+        lam, solved = _projected_sweeps(A, pre, target, mu)
+        return (lam if solved or not strict else None), None
     if slip0 is None:
         return lam, None
     size0 = np.sqrt((slip0 * slip0).sum(1))
@@ -1103,65 +1110,43 @@ def _admissible(A, pre, target, lam, tol_v) -> bool:
 SWEEPS = 200  # projected Gauss-Seidel sweeps of `_projected_sweeps`, at most
 
 
-def _projected_sweeps(A, pre, target, mu) -> np.ndarray:
-    """Impulses (k, 3) along (n, t1, t2) for `_patch`'s problem by projected Gauss-Seidel
-    from zero, the fallback where its active sets do not settle (`_admissible`): per point,
-    the normal impulse that meets v_n = -target, clamped at >= 0, then the friction
-    impulse that stops its slip (the 2 x 2 tangent block solved), scaled into the cone
-    mu lam_n. Each update lowers the quadratic lam.pre + lam.A lam / 2 (the kinetic
-    energy change) over a convex set, so the result never pulls, never leaves a cone and
-    never adds energy; it is order-dependent (mirror images may differ) and converges
-    slowly where points are nearly dependent: sweeps stop when no impulse changes by
-    more than 1e-13 of the largest, or after SWEEPS. (Painleve's configurations have
-    rigid-body velocity solutions only with sticking; Stewart 2000, SIAM Review 42.)"""
+def _projected_sweeps(A, pre, target, mu):
+    """(lam, solved) for `_patch`'s problem by projected Gauss-Seidel from zero, the
+    fallback where its active sets do not settle (`_admissible`). lam: (k, 3) along (n,
+    t1, t2). Per point: the normal impulse that meets v_n = -target, clamped at >= 0,
+    then the friction impulse that stops its slip (the 2 x 2 tangent block solved),
+    scaled into the cone mu lam_n. Each update lowers the quadratic lam.pre + lam.A lam
+    / 2 over a convex set (an update that would raise it is skipped unless the cone
+    shrank under the old friction), so the result never pulls and never leaves a cone.
+    With fixed other bodies that quadratic is the kinetic energy change. The result is
+    order-dependent (mirror images may differ) and converges slowly where points are
+    nearly dependent. Sweeps stop when no impulse changes by more than 1e-13 of the
+    largest, or after SWEEPS. solved: the sweeps converged and no point approaches
+    after the final normal pass. Against frozen bodies that move (`_patch_blocks`),
+    pre need not be a velocity the body can have: two lower bodies closing on it ask
+    for the impossible, the quadratic has no minimum and the sweeps grow impulses
+    without bound (940 N s in a 32-box grid, which threw a 1 kg box at 6 m/s).
+    (Painleve's configurations have rigid-body velocity solutions only with sticking;
+    Stewart 2000, SIAM Review 42.)"""
+    from vrsim_cli.kernels.plastic import dense_sweeps  # numba: hard contact sets only
+
     k = len(pre)
-    lam = np.zeros((k, 3))
+    flat = np.zeros(3 * k)
     v = pre.ravel().copy()
-    flat = lam.ravel()
-    for _ in range(SWEEPS):
-        change = 0.0
-        for i in range(k):
-            n, t = 3 * i, slice(3 * i + 1, 3 * i + 3)
-            if A[n, n] > 0.0:
-                new = max(flat[n] - (v[n] + target[i]) / A[n, n], 0.0)
-                d = new - flat[n]
-                if d != 0.0:
-                    v += A[:, n] * d
-                    flat[n] = new
-                    change = max(change, abs(d))
-            old = flat[t].copy()
-            limit = mu[i] * flat[n]
-            T = A[t, t]
-            if limit <= 0.0:
-                new_t = np.zeros(2)
-            else:
-                det = T[0, 0] * T[1, 1] - T[0, 1] * T[1, 0]
-                if abs(det) > 1e-300:
-                    step = np.array([T[1, 1] * v[t][0] - T[0, 1] * v[t][1],
-                                     T[0, 0] * v[t][1] - T[1, 0] * v[t][0]]) / det
-                else:
-                    step = np.where(np.diag(T) > 0.0, v[t] / np.where(np.diag(T) > 0.0,
-                                                                      np.diag(T), 1.0), 0.0)
-                new_t = old - step
-                size = float(np.sqrt(dot(new_t, new_t)))
-                if size > limit:
-                    new_t = new_t * (limit / size)
-            d_t = new_t - old
-            # the radial scaling is not the cone's minimiser when T is anisotropic: an
-            # update that would raise the quadratic is skipped
-            if (d_t != 0.0).any() and dot(d_t, v[t] + 0.5 * matmul(T, d_t)) <= 0.0:
-                v += matmul(A[:, t], d_t)
-                flat[t] = new_t
-                change = max(change, float(np.abs(d_t).max()))
-        if change <= 1e-13 * (1.0 + float(np.abs(flat).max())):
-            break
+    converged = bool(dense_sweeps(np.ascontiguousarray(A, dtype=float),
+                                  np.ascontiguousarray(target, dtype=float),
+                                  np.ascontiguousarray(mu, dtype=float), v, flat, SWEEPS,
+                                  1e-13))
     # what still approaches after the sweeps gets normal impulses only, all at once
     # (`_lcp`): lam_n only grows, so the friction stays in its cones, and the pass
     # is dissipative like any plastic normal impulse
     rows = 3 * np.arange(k)
-    if (v[rows] < -target - 1e-12 * (1.0 + float(np.abs(v).max()))).any():
-        flat[rows] += _lcp(A[np.ix_(rows, rows)], v[rows], -target)
-    return flat.reshape(k, 3)
+    tol = 1e-12 * (1.0 + float(np.abs(v).max()))
+    if (v[rows] < -target - tol).any():
+        extra = _lcp(A[np.ix_(rows, rows)], v[rows], -target)
+        flat[rows] += extra
+        v += matmul(A[:, rows], extra)
+    return flat.reshape(k, 3), bool(converged and not (v[rows] < -target - tol).any())
 
 
 def _patch_statuses(A, pre, target, mu, active, slide, s) -> np.ndarray:
