@@ -1016,8 +1016,13 @@ def _patch(A, pre, target, mu, slip0=None, strict=False):
     lam = np.zeros((k, 3))
     seen = set()
     settled = False
+    visited = set()
     for _ in range(PATCH_ROUNDS):
         key = (active.tobytes(), slide.tobytes())
+        state = key + (s.tobytes(),)
+        if state in visited:
+            break  # statuses and slip directions repeat exactly: a cycle, not settling
+        visited.add(state)
         lam = _patch_statuses(A, pre, target, mu, active, slide, s)
         v = pre + matmul(A, lam.ravel()).reshape(k, 3)
         tol_l = 1e-12 * (1.0 + float(np.abs(lam).max()))
