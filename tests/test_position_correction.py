@@ -23,16 +23,23 @@ import pytest
 from vrsim_cli.stages.collision import solver
 
 
-def _wedged(rng, tilt):
-    """A movable box (body 2) between two fixed bodies (0 below, 1 above) touching it at
-    nearly one point with nearly opposite normals (the upper one tilted by `tilt` rad),
-    both penetrating by 1-10 mm; plus two ordinary contacts of the box on body 0."""
+def _box(rng):
+    """A box (body 2 of three; 0 and 1 fixed): mass 0.5-5 kg, sides 0.1-0.5 m. Returns
+    (mass, sides (3,), inertia (3, 3), inverse inertias of the three bodies (3, 3, 3))."""
     m = float(rng.uniform(0.5, 5.0))
     size = rng.uniform(0.1, 0.5, 3)
     inertia = np.diag(m / 12.0 * np.array([size[1] ** 2 + size[2] ** 2,
                                            size[0] ** 2 + size[2] ** 2,
                                            size[0] ** 2 + size[1] ** 2]))
-    inv_i = np.stack([np.zeros((3, 3)), np.zeros((3, 3)), np.linalg.inv(inertia)])
+    return m, size, inertia, np.stack([np.zeros((3, 3)), np.zeros((3, 3)),
+                                       np.linalg.inv(inertia)])
+
+
+def _wedged(rng, tilt):
+    """A movable box (body 2) between two fixed bodies (0 below, 1 above) touching it at
+    nearly one point with nearly opposite normals (the upper one tilted by `tilt` rad),
+    both penetrating by 1-10 mm; plus two ordinary contacts of the box on body 0."""
+    m, size, inertia, inv_i = _box(rng)
     bodies = solver.Bodies(np.array([0.0, 0.0, 1.0 / m]), inv_i, np.zeros((3, 3)),
                            np.zeros((3, 3)), np.array([[0.0, -1.0, 0.0], [0.0, 1.0, 0.0],
                                                        [0.0, 0.0, 0.0]]))
@@ -106,12 +113,7 @@ def _straddling(rng):
     w = 0.5-5 mm, and on body 1 (normal tilted 0-10 mrad about a random horizontal axis)
     with the 4 corners of that strip. Depths -2-10 mm, each drawn (uneven, as a pile
     leaves them). Returns (bodies, contacts, depths, mass, inertia (3, 3), normals)."""
-    m = float(rng.uniform(0.5, 5.0))
-    size = rng.uniform(0.1, 0.5, 3)
-    inertia = np.diag(m / 12.0 * np.array([size[1] ** 2 + size[2] ** 2,
-                                           size[0] ** 2 + size[2] ** 2,
-                                           size[0] ** 2 + size[1] ** 2]))
-    inv_i = np.stack([np.zeros((3, 3)), np.zeros((3, 3)), np.linalg.inv(inertia)])
+    m, size, inertia, inv_i = _box(rng)
     bodies = solver.Bodies(np.array([0.0, 0.0, 1.0 / m]), inv_i, np.zeros((3, 3)),
                            np.zeros((3, 3)), np.array([[0.0, -1.0, 0.0], [1.0, -1.0, 0.0],
                                                        [0.0, 0.0, 0.0]]))

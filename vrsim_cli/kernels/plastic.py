@@ -59,6 +59,35 @@ def _coupling(i, j, m, dirs, jac_a, jac_b, lin_a, lin_b, rot_a, rot_b):
 
 
 @kernel
+def _friction_step(o1, o2, v1, v2, t11, t12, t21, t22, limit):
+    """The friction impulse (n1, n2) of one point after a Gauss-Seidel update: the old
+    one (o1, o2) minus the 2 x 2 tangent block's solve of the slip (v1, v2), scaled into
+    the cone of radius limit (0 when limit <= 0); and whether to take it: when it does
+    not raise the energy quadratic (its change d.(v_t + T d / 2) <= 0: the radial
+    scaling is not the cone's minimiser when T is anisotropic), or when the old friction
+    has left a cone that shrank (the cone comes first)."""
+    if limit <= 0.0:
+        n1, n2 = 0.0, 0.0
+    else:
+        det = t11 * t22 - t12 * t21
+        if abs(det) > 1e-300:
+            s1 = (t22 * v1 - t12 * v2) / det
+            s2 = (t11 * v2 - t21 * v1) / det
+        else:
+            s1 = v1 / t11 if t11 > 0.0 else 0.0
+            s2 = v2 / t22 if t22 > 0.0 else 0.0
+        n1, n2 = o1 - s1, o2 - s2
+        size = math.sqrt(n1 * n1 + n2 * n2)
+        if size > limit:
+            n1, n2 = n1 * (limit / size), n2 * (limit / size)
+    d1, d2 = n1 - o1, n2 - o2
+    if d1 == 0.0 and d2 == 0.0:
+        return n1, n2, False
+    work = d1 * (v1 + 0.5 * (t11 * d1 + t12 * d2)) + d2 * (v2 + 0.5 * (t21 * d1 + t22 * d2))
+    return n1, n2, work <= 0.0 or o1 * o1 + o2 * o2 > limit * limit
+
+
+@kernel
 def plastic_sweeps(a, b, dirs, jac_a, jac_b, lin_a, lin_b, rot_a, rot_b, mu, vel, angvel,
                    lam, max_sweeps, tol):
     """Projected Gauss-Seidel on the contacts (k rows: a, b body indices; the ContactSet
@@ -90,32 +119,13 @@ def plastic_sweeps(a, b, dirs, jac_a, jac_b, lin_a, lin_b, rot_a, rot_b, mu, vel
             t21 = _coupling(i, 2, 1, dirs, jac_a, jac_b, lin_a, lin_b, rot_a, rot_b)
             t22 = _coupling(i, 2, 2, dirs, jac_a, jac_b, lin_a, lin_b, rot_a, rot_b)
             o1, o2 = lam[i, 1], lam[i, 2]
-            if limit <= 0.0:
-                n1, n2 = 0.0, 0.0
-            else:
-                det = t11 * t22 - t12 * t21
-                if abs(det) > 1e-300:
-                    s1 = (t22 * v1 - t12 * v2) / det
-                    s2 = (t11 * v2 - t21 * v1) / det
-                else:
-                    s1 = v1 / t11 if t11 > 0.0 else 0.0
-                    s2 = v2 / t22 if t22 > 0.0 else 0.0
-                n1, n2 = o1 - s1, o2 - s2
-                size = math.sqrt(n1 * n1 + n2 * n2)
-                if size > limit:
-                    n1, n2 = n1 * (limit / size), n2 * (limit / size)
-            d1, d2 = n1 - o1, n2 - o2
-            if d1 != 0.0 or d2 != 0.0:
-                # the energy change of this update: d.(v_t + T d / 2); an update that
-                # would add energy is skipped unless the old friction has left the cone
-                # (the normal impulse fell): the cone comes first
-                work = d1 * (v1 + 0.5 * (t11 * d1 + t12 * d2)) + \
-                    d2 * (v2 + 0.5 * (t21 * d1 + t22 * d2))
-                if work <= 0.0 or o1 * o1 + o2 * o2 > limit * limit:
-                    _push(i, 1, d1, a, b, lin_a, lin_b, rot_a, rot_b, vel, angvel)
-                    _push(i, 2, d2, a, b, lin_a, lin_b, rot_a, rot_b, vel, angvel)
-                    lam[i, 1], lam[i, 2] = n1, n2
-                    change = max(change, max(abs(d1), abs(d2)))
+            n1, n2, take = _friction_step(o1, o2, v1, v2, t11, t12, t21, t22, limit)
+            if take:
+                d1, d2 = n1 - o1, n2 - o2
+                _push(i, 1, d1, a, b, lin_a, lin_b, rot_a, rot_b, vel, angvel)
+                _push(i, 2, d2, a, b, lin_a, lin_b, rot_a, rot_b, vel, angvel)
+                lam[i, 1], lam[i, 2] = n1, n2
+                change = max(change, max(abs(d1), abs(d2)))
         if change <= tol:
             break
     return sweeps
@@ -151,29 +161,13 @@ def dense_sweeps(A, target, mu, v, lam, max_sweeps, rel_tol):
             o1, o2 = lam[t1], lam[t2]
             limit = mu[i] * lam[n]
             a11, a12, a21, a22 = A[t1, t1], A[t1, t2], A[t2, t1], A[t2, t2]
-            if limit <= 0.0:
-                n1, n2 = 0.0, 0.0
-            else:
-                det = a11 * a22 - a12 * a21
-                if abs(det) > 1e-300:
-                    s1 = (a22 * v[t1] - a12 * v[t2]) / det
-                    s2 = (a11 * v[t2] - a21 * v[t1]) / det
-                else:
-                    s1 = v[t1] / a11 if a11 > 0.0 else 0.0
-                    s2 = v[t2] / a22 if a22 > 0.0 else 0.0
-                n1, n2 = o1 - s1, o2 - s2
-                size = math.sqrt(n1 * n1 + n2 * n2)
-                if size > limit:
-                    n1, n2 = n1 * (limit / size), n2 * (limit / size)
-            d1, d2 = n1 - o1, n2 - o2
-            if d1 != 0.0 or d2 != 0.0:
-                work = d1 * (v[t1] + 0.5 * (a11 * d1 + a12 * d2)) + \
-                    d2 * (v[t2] + 0.5 * (a21 * d1 + a22 * d2))
-                if work <= 0.0 or o1 * o1 + o2 * o2 > limit * limit:
-                    for r in range(m):
-                        v[r] += A[r, t1] * d1 + A[r, t2] * d2
-                    lam[t1], lam[t2] = n1, n2
-                    change = max(change, max(abs(d1), abs(d2)))
+            n1, n2, take = _friction_step(o1, o2, v[t1], v[t2], a11, a12, a21, a22, limit)
+            if take:
+                d1, d2 = n1 - o1, n2 - o2
+                for r in range(m):
+                    v[r] += A[r, t1] * d1 + A[r, t2] * d2
+                lam[t1], lam[t2] = n1, n2
+                change = max(change, max(abs(d1), abs(d2)))
         largest = 0.0
         for r in range(m):
             largest = max(largest, abs(lam[r]))
