@@ -806,10 +806,11 @@ def _move_cap(blk, sub: ContactSet, excess, dv, dw) -> np.ndarray:
     unless a body's largest point movement (bound: |dv| + |dw| times its largest arm)
     exceeds both MOVE_CAP times the deepest excess of its contacts and MOVE_REACH times
     that arm, then what brings it down to the larger of the two. Why: a body wedged
-    between two lower bodies whose normals are nearly opposite has contact rows with (almost)
-    no solution; their minimum-norm least-squares solve (pseudo-inverse, singular values
-    down to 1e-10 of the largest kept) moved a box of a 27-box pile by 50 m and turned one
-    by 1926 rad in one pass (energy +1e4 J, the run stopped by its guard). A body in a
+    between two bodies whose normals are nearly opposite, both penetrating, has contact
+    rows with no solution: the least-squares pass of old moved a box of a 27-box pile by
+    50 m and turned one by 1926 rad in one pass (energy +1e4 J, the run stopped by its
+    guard), and the complementarity pass (`_block_positions`) ends in projected sweeps
+    that grow without bound there (20 of the 40 wedges of the test still reach the cap). A body in a
     steep groove needs a large multiple of its excess (1 / sin of the walls' angle from
     vertical: 19 times at 3 degrees), a small share of its size: a cap at the excess alone
     left a sphere 1.3 mm deep in a 3-degree groove (review of the first cap)."""
@@ -835,13 +836,13 @@ def _cluster(sub: ContactSet, v, target) -> np.ndarray:
 
 
 def _block(bodies: Bodies, c: ContactSet, rows, upper_is_b):
-    """The contacts `rows` of one level, each with one frozen (lower) body, as one small
-    least-norm problem per upper body u: find the velocity change (dv, dw) of u, the least
-    in u's kinetic-energy metric W = diag(1/m, I^-1), that changes each contact's
-    velocity along d_j (n, t1, t2) by b: J W J^T lam = b, (dv, dw) = W J^T lam with the
-    row J = s (d_j, p x d_j) (s = +1 when u is B). Three rows per contact, padded to the
-    largest count per body; the pseudo-inverse handles coplanar manifolds (4 corners on
-    a face: rank 3 along n)."""
+    """The contacts `rows` of one level, each with one frozen (lower) body, grouped per
+    upper body u: (rows, their ContactSet, bodies_u, slot_body, slot, WJt, A) with the
+    rows J = s (d_j, p x d_j) along d_j = n, t1, t2 (s = +1 when u is B), W = diag(1/m,
+    I^-1) u's kinetic-energy metric, WJt = W J^T (u's velocity change per unit impulse
+    along each row) and A = J W J^T (the Delassus matrix of u's rows). Three rows per
+    contact, padded to the largest count per body (slot: a contact's place among its
+    body's). `_patch_blocks` and `_block_positions` solve on them."""
     upper = np.where(upper_is_b, c.b[rows], c.a[rows])
     sign = np.where(upper_is_b, 1.0, -1.0)[:, None, None]
     jac = np.where(upper_is_b[:, None, None], c.jac_b[rows], c.jac_a[rows])
@@ -859,7 +860,7 @@ def _block(bodies: Bodies, c: ContactSet, rows, upper_is_b):
     W[:, :3, :3] = bodies.inv_mass[bodies_u, None, None] * np.eye(3)
     W[:, 3:, 3:] = bodies.inv_inertia[bodies_u]
     WJt = matmul(W, np.swapaxes(J, 1, 2))
-    return rows, c.take(rows), bodies_u, slot_body, slot, WJt, matmul(J, WJt), (nb, kmax)
+    return rows, c.take(rows), bodies_u, slot_body, slot, WJt, matmul(J, WJt)
 
 
 def _pinv(A):
@@ -888,7 +889,7 @@ def _block_positions(blk, moved, target):
     that pushed in, and one pass lifted the cube 11 cm (a 32-box grid boiled at 1-2
     m/s, `tests/test_position_correction.py`). Impulses that may not pull keep the move
     near the excess."""
-    _, _, bodies_u, slot_body, slot, WJt, A, _ = blk
+    _, _, bodies_u, slot_body, slot, WJt, A = blk
     nb = len(bodies_u)
     dv, dw = np.zeros((nb, 3)), np.zeros((nb, 3))
     for i in range(nb):
@@ -933,7 +934,7 @@ def _patch_blocks(bodies: Bodies, blk, target, lam, start=None, kink=None) -> No
     replaced by the patch solution, unless the patch has none (`_patch`, strict: the
     frozen bodies' motion may ask for the impossible); then the iterations' stand.
     target: (len(rows),) m/s allowed approach. start, kink: see `solve_resting`."""
-    rows, sub, bodies_u, slot_body, slot, WJt, A, _ = blk
+    rows, sub, bodies_u, slot_body, slot, WJt, A = blk
     v_now = velocity_along(bodies, sub)
     v_start = None
     if start is not None:
@@ -1105,14 +1106,15 @@ def _admissible(A, pre, target, lam, tol_v) -> bool:
     Painleve's paradox); the statuses cycled through sticking, sliding and leaving and
     ended on lam_n = -8.4 N s, which threw a 2.7 kg box at 6 m/s and 42 rad/s."""
     size = 1.0 + float(np.abs(lam).max())
-    v = pre + matmul(A, lam.ravel()).reshape(-1, 3)
+    change = matmul(A, lam.ravel())
+    v = pre + change.reshape(-1, 3)
     if (lam[:, 0] < -1e-12 * size).any() or (v[:, 0] < -target - tol_v).any():
         return False
-    gain = dot(lam.ravel(), pre.ravel() + 0.5 * matmul(A, lam.ravel()))
+    gain = dot(lam.ravel(), pre.ravel() + 0.5 * change)
     return gain <= 1e-12 * size * (1.0 + float(np.abs(pre).max()))
 
 
-SWEEPS = 200  # projected Gauss-Seidel sweeps of `_projected_sweeps`, at most
+SWEEPS = 200  # projected Gauss-Seidel sweeps of `_projected_sweeps` and `_lcp`, at most
 
 
 def _projected_sweeps(A, pre, target, mu):
