@@ -169,3 +169,36 @@ def test_a_cache_folder_that_cannot_be_written_is_said_once_with_the_fix(tmp_pat
     assert "(not kept: the kernel cache folder" in proc.stderr, proc.stderr
     assert "set VRSIM_CACHE_DIR to a writable folder" in proc.stderr, proc.stderr
     assert (tmp_path / "one.csv").is_file()
+
+
+FIRST = """
+import numba  # before vrsim: numba reads NUMBA_CACHE_DIR at its import, so jit must
+import firstmod  # point numba's cache at its folder itself
+print(firstmod.twice(2.0))
+"""
+
+
+@pytest.mark.skipif(jit.JIT_DISABLED, reason="no compiled code to cache with the JIT off")
+def test_kernels_are_cached_in_vrsims_folder_when_numba_was_imported_first(tmp_path):
+    """A notebook or script that imports numba before vrsim (the Python API) must keep
+    the kernels in vrsim's folder (src-<digest>: stale machine code of a changed callee
+    in another file is never loaded). Before, numba had read NUMBA_CACHE_DIR (unset) at
+    its import and cached next to the sources (the package's kernels/__pycache__), keyed
+    by each defining file's timestamp only."""
+    (tmp_path / "firstmod.py").write_text(textwrap.dedent("""
+        from vrsim_cli.kernels.jit import kernel
+
+
+        @kernel
+        def twice(x):
+            return 2.0 * x
+        """))
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["VRSIM_CACHE_DIR"] = str(tmp_path / "base")
+    env["PYTHONPATH"] = str(tmp_path) + os.pathsep + env.get("PYTHONPATH", "")
+    out = subprocess.run([sys.executable, "-c", FIRST], env=env, cwd=tmp_path,
+                         capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["4.0"]
+    assert not list(tmp_path.glob("__pycache__/*.nbi")), "cached beside the source"
+    saved = list((tmp_path / "base").glob(f"src-{jit._source_digest()}/**/firstmod.twice-*.nbi"))
+    assert len(saved) == 1, sorted(str(p) for p in (tmp_path / "base").rglob("*"))

@@ -74,6 +74,10 @@ def _configure() -> None:
     if _writable(folder):
         _CACHE["dir"], _CACHE["note"] = folder, None
         os.environ["NUMBA_CACHE_DIR"] = str(folder)
+        if "numba" in sys.modules:  # imported before vrsim (a notebook, a script): it
+            # read the variable at its import, and would cache beside the sources, keyed
+            # by each defining file's timestamp only; its locators read this per kernel
+            sys.modules["numba"].config.CACHE_DIR = str(folder)
         # and the base for processes this one starts (sweep workers, tests, the compile
         # helper): given only NUMBA_CACHE_DIR, their jit nested another src-<digest>
         # inside it and compiled everything again there
