@@ -21,8 +21,8 @@
    bracket comes from conservative advancement along the integrator's path (Mirtich
    1996; `_march`), which uses continuous detection's time of impact and cannot step
    over an overlap deeper than the collision tolerance: fast bodies do not tunnel.
-2. **Resting contact** at the end of the step: sequential impulses with friction and warm
-   starting, shock propagation and position correction (`solver.solve_resting`,
+2. **Resting contact** at the end of the step: sequential impulses with friction (from
+   zero each step: `solver._iterate_resting` says why), shock propagation and position correction (`solver.solve_resting`,
    `solver.correct_positions`).
 
 Responses per pair (`model.response`): `impulse` (above), `slide` (the slide's
@@ -62,7 +62,6 @@ ROOT_TOLERANCE = 1e-13  # of the step: the time of impact is found to this fract
 MARCH_STEPS = 1024  # conservative-advancement steps along the path before sampling the rest
 LEAVE_SAMPLES = 16  # samples of the rest of the step after MARCH_STEPS
 ARM_ROUNDOFF = 1e-12  # of the coordinates: a turning pair's gap must open beyond this
-WARM_RADIUS = 0.02  # m: a contact within this of last step's (same pair) inherits its impulse
 
 
 def detect(model, state) -> Contacts:
@@ -545,27 +544,9 @@ def _root(gap, lo, g_lo, hi, g_hi, h):
 # ------------------------------------------------------------------------ resting
 
 
-def _warm_start(before, c: Contacts, model):
-    """Impulses (k, 3) N s of last step's resting contacts matched to these (same pair,
-    point within WARM_RADIUS; 0 for new contacts), or None without a last step."""
-    old, imp = before.contacts, before.contact_impulse
-    if old is None or imp is None or not len(old) or not len(c):
-        return None
-    n = model.n_body
-    key_new = c.body_a * n + c.body_b
-    key_old = old.body_a * n + old.body_b
-    dist = np.linalg.norm(c.point[:, None, :] - old.point[None, :, :], axis=2)
-    dist = np.where(key_new[:, None] == key_old[None, :], dist, np.inf)
-    dist = np.where(np.isnan(old.toi)[None, :], dist, np.inf)  # not the impact rows
-    best = np.argmin(dist, axis=1)
-    ok = dist[np.arange(len(c)), best] <= WARM_RADIUS
-    vec = np.where(ok[:, None], imp[best], 0.0)
-    return vec
-
-
 def resting(model, start, state, last=None, c=None):
-    """Resting contact at the end of a step (`state`; `start`: the step's start, for warm
-    starting; `last`: the state after the step's last impact, default `start`: a `stop`
+    """Resting contact at the end of a step (`state`; `start`: the step's start; `last`:
+    the state after the step's last impact, default `start`: a `stop`
     body goes back to its pose there, the last pose known not to collide). Returns the
     corrected state with contacts and impulses. c: the contacts of `state` if known."""
     last = start if last is None else last
@@ -606,12 +587,9 @@ def resting(model, start, state, last=None, c=None):
     dtheta = np.zeros((model.n_body, 3))
     if len(rows):
         impulse[rows] += _missed_impacts(model, then, bodies, c, rows)
-        sub = Contacts(*(getattr(c, f)[rows] for f in (
-            "body_a", "body_b", "point", "normal", "depth", "toi")))
         cs = _contact_set(model, bodies, c, rows)
-        warm = _warm_start(start, sub, model)
         kink = np.full((model.n_body, 4), np.nan)
-        impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations, warm,
+        impulse[rows] = solver.solve_resting(bodies, cs, model.dt, rm.iterations,
                                              (last.body_vel, last.body_angvel), kink)
         # held: an impulse that changes the contact's velocity by more than round-off
         # (a contact with 2e-15 N s and its mirror image with 0 were treated apart)

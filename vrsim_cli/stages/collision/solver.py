@@ -701,19 +701,19 @@ def levels(n_body: int, a, b, movable) -> np.ndarray:
     return level
 
 
-def solve_resting(bodies: Bodies, c: ContactSet, dt: float, iterations: int, warm=None,
-                  start=None, kink=None):
+def solve_resting(bodies: Bodies, c: ContactSet, dt: float, iterations: int, start=None,
+                  kink=None):
     """Sequential impulses on the contacts c (restitution 0), then a shock-propagation pass
-    on the normal velocities. `warm`: (k, 3) impulses (N s, world) to start from. Returns
+    on the normal velocities. Returns
     the accumulated impulse (k, 3) N s, world, on B of each contact. `start`: (vel,
     angvel) (n, 3) of the bodies at the step's start and `kink` (n, 4): where a point
     that slipped then sticks at the step's end, kink[body] is set to (fraction of the
     step at which its slip stopped, linear velocity (3,) m/s then) (`_patch`).
 
     Per contact the accumulated normal impulse lam_n stays >= 0 and the friction impulse
-    in the Coulomb cone |lam_t| <= mu lam_n (clamping the accumulated, not the
-    incremental, impulse is what lets warm starting work; Catto 2006). A contact with a
-    gap (depth < 0) may still close at speed -depth/dt (a speculative contact)."""
+    in the Coulomb cone |lam_t| <= mu lam_n (the accumulated, not the incremental,
+    impulse is clamped; Catto 2006). A contact with a gap (depth < 0) may still close at
+    speed -depth/dt (a speculative contact)."""
     k = len(c)
     if not k:
         return np.zeros((0, 3))
@@ -722,7 +722,7 @@ def solve_resting(bodies: Bodies, c: ContactSet, dt: float, iterations: int, war
     if k <= EXACT_CONTACTS:
         lam = _exact_resting(bodies, c, target)
     else:
-        lam = _iterate_resting(bodies, c, target, iterations, warm, movable)
+        lam = _iterate_resting(bodies, c, target, iterations, movable)
     loaded = lam[:, 0] > 0.0
     # Sticking: the friction impulse that would stop the sliding now fits in the cone of
     # the final normal impulse (the last clamp used an earlier, smaller lam_n).
@@ -748,18 +748,19 @@ def _exact_resting(bodies: Bodies, c: ContactSet, target) -> np.ndarray:
     return lam
 
 
-def _iterate_resting(bodies: Bodies, c: ContactSet, target, iterations, warm, movable):
-    """Sequential impulses over colours (see `solve_resting`); returns lam (k, 3)."""
+def _iterate_resting(bodies: Bodies, c: ContactSet, target, iterations, movable):
+    """Sequential impulses over colours (see `solve_resting`), from zero; returns lam
+    (k, 3). Not warm-started from last step's impulses: where contacts are statically
+    indeterminate (boxes side by side, a wall), a warm start carries last step's
+    self-balanced share (boxes pushing each other apart, held by friction below) into
+    the next, the sweeps add to it, and it grew step by step until friction gave way: a
+    2 x 2 block of cubes at rest kicked one to 0.17 m/s after 0.77 s, a 4 x 5 wall moved
+    at up to 1.8 m/s. Shock propagation and the exact patch solves, not the warm start,
+    are what keep stacks from sinking."""
     k = len(c)
-    lam = np.zeros((k, 3)) if warm is None else np.einsum("kjd,kd->kj", c.dirs, warm)
-    lam[:, 0] = np.maximum(lam[:, 0], 0.0)
-    over = np.linalg.norm(lam[:, 1:], axis=1) > c.friction * lam[:, 0]
-    lam[over, 1:] = 0.0
+    lam = np.zeros((k, 3))
     groups = colours(c.a, c.b, movable)
     subs = [c.take(g) for g in groups]
-    if warm is not None:
-        for g, sub in zip(groups, subs):
-            apply_along(bodies, sub, lam[g])
     rubs = [bool((sub.friction > 0).any()) for sub in subs]
     for _ in range(iterations):
         for g, sub, rub in zip(groups, subs, rubs):
