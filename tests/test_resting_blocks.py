@@ -30,7 +30,10 @@ import pytest
 
 from conftest import simulate
 
-INCLINED = 8  # seeds 0-7: on flat ground; from 8: on an incline that friction holds
+INCLINED = 8  # seeds below: on flat ground; from 8: on an incline that friction holds
+# flat: every dt (seed % 3) and integrator (seed // 3 % 3) once at least; seeds 4, 5
+# and 7 (the three costliest, 15 s together) are left out for the suite's time
+SEEDS = [0, 1, 2, 3, 6, 8, 9, 10, 11]
 KNOWN_SLIDING = {8, 10}  # measured 2026-12-04: 0.0087 and 0.018 m/s after 1 s
 
 # Held bodies move by round-off only: what the rest solve leaves (<= ~1e-14 m/s per step
@@ -80,7 +83,7 @@ bodies:
 @pytest.mark.parametrize("seed", [
     pytest.param(k, marks=pytest.mark.xfail(strict=True, reason=(
         "a block on an incline: an upper box drops for a step, then the block creeps "
-        "(module docstring)"))) if k in KNOWN_SLIDING else k for k in range(12)])
+        "(module docstring)"))) if k in KNOWN_SLIDING else k for k in SEEDS])
 def test_a_block_of_boxes_at_rest_stays_at_rest(seed):
     text, case = draw(seed)
     model, _, final = simulate(text)
