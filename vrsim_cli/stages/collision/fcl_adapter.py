@@ -89,6 +89,13 @@ def pair_contacts(cm, world, ia, ib, margin):
     fcl = _fcl()
     request = fcl.CollisionRequest(num_max_contacts=MAX_CONTACTS, enable_contact=True)
     out_pair, out_point, out_normal, out_depth = [], [], [], []
+
+    def emit(p, point, normal, depth):
+        out_pair.append(p)
+        out_point.append(point)
+        out_normal.append(normal)
+        out_depth.append(depth)
+
     for p, (a, b) in enumerate(zip(ia.tolist(), ib.tolist())):
         oa, ob = collision_object(cm, world, a), collision_object(cm, world, b)
         convex = MESH not in (int(cm.geom_type[a]), int(cm.geom_type[b]))
@@ -104,32 +111,25 @@ def pair_contacts(cm, world, ia, ib, margin):
                 for c in result.contacts:
                     normal = np.asarray(c.normal, float)
                     length = norm(normal)
-                    out_pair.append(p)
-                    out_point.append(np.asarray(c.pos, float))
-                    out_normal.append(normal / length if length > 0 else np.array([0.0, 1, 0]))
-                    out_depth.append(float(c.penetration_depth))
+                    emit(p, np.asarray(c.pos, float),
+                         normal / length if length > 0 else np.array([0.0, 1, 0]),
+                         float(c.penetration_depth))
                 continue
         elif margin > 0.0:
             d, pa, pb = distance(oa, ob)
-            if _separated(d, pa, pb) and (d > margin or d >= PROBE_STEPS[0] or not convex):
+            apart = _separated(d, pa, pb)
+            if apart and (d > margin or d >= PROBE_STEPS[0] or not convex):
                 if d <= margin:
-                    out_pair.append(p)
-                    out_point.append(0.5 * (pa + pb))
-                    out_normal.append((pb - pa) / norm(pb - pa))
-                    out_depth.append(-d)
+                    emit(p, 0.5 * (pa + pb), (pb - pa) / norm(pb - pa), -d)
                 continue
             # touching, overlapping by less than fcl's collide resolves, or apart by less
             # than its distance resolves: its distance then says -1 (its "in collision")
             # or 0 with NaN points, which were taken for a depth of 1 m and for NaN
             # contacts; and its closest points this close are poor (a capsule's
             # direction off by 0.8 rad at a gap of 1e-12 m)
-            found = _touching(cm, world, a, b, oa, max(d, 0.0) if _separated(d, pa, pb)
-                              else 0.0)
+            found = _touching(cm, world, a, b, oa, d if apart else 0.0)
         if found is not None:
-            out_pair.append(p)
-            out_point.append(found[0])
-            out_normal.append(found[1])
-            out_depth.append(found[2])
+            emit(p, *found)
     if not out_pair:
         return no_pair_contacts()
     return (np.array(out_pair, np.int64), np.array(out_point), np.array(out_normal),
@@ -155,15 +155,12 @@ def _touching(cm, world, a: int, b: int, oa, gap: float):
     collide sees, or None. b is pushed into a by a probe step s along -u, where collide
     works: to first order its depth is depth + s (n . u), so the depth is that less
     s (n . u) (second order: s^2 / radius of curvature, ~1e-7 m for 0.1 m shapes). u:
-    the centres' direction first (a plane's normal), then the axes; a probe that pushes
-    mostly sideways of the contact normal (n . u < 0.5) is not used. `gap` m: what fcl
-    measured apart (0 when it did not); steps below 4 gap are skipped."""
+    the centres' direction first, then the axes (no plane comes here: every plane pair
+    has a closed form); a probe that pushes mostly sideways of the contact normal
+    (n . u < 0.5) is not used. `gap` m: what fcl measured apart (0 when it did not);
+    steps below 4 gap are skipped."""
     fcl = _fcl()
     centre = world.pos[b] - world.pos[a]
-    if int(cm.geom_type[a]) == PLANE:
-        centre = np.asarray(cm.geom_plane_normal[a], float)
-    elif int(cm.geom_type[b]) == PLANE:
-        centre = -np.asarray(cm.geom_plane_normal[b], float)
     length = norm(centre)
     probes = [centre / length] if length > 0.0 else []
     probes += [sign * axis for axis in np.eye(3) for sign in (1.0, -1.0)]

@@ -22,8 +22,8 @@
    1996; `_march`), which uses continuous detection's time of impact and cannot step
    over an overlap deeper than the collision tolerance: fast bodies do not tunnel.
 2. **Resting contact** at the end of the step: sequential impulses with friction (from
-   zero each step: `solver._iterate_resting` says why), shock propagation and position correction (`solver.solve_resting`,
-   `solver.correct_positions`).
+   zero each step: `solver._iterate_resting` says why), shock propagation and position
+   correction (`solver.solve_resting`, `solver.correct_positions`).
 
 Responses per pair (`model.response`): `impulse` (above), `slide` (the slide's
 v <- v - (v.n) n for each body moving into the other, then pushed out of penetration),
@@ -546,8 +546,8 @@ def _root(gap, lo, g_lo, hi, g_hi, h):
 
 def resting(model, start, state, last=None, c=None):
     """Resting contact at the end of a step (`state`; `start`: the step's start; `last`:
-    the state after the step's last impact, default `start`: a `stop`
-    body goes back to its pose there, the last pose known not to collide). Returns the
+    the state after the step's last impact, default `start`: a `stop` body goes back to
+    its pose there, the last pose known not to collide). Returns the
     corrected state with contacts and impulses. c: the contacts of `state` if known."""
     last = start if last is None else last
     rm = model.response

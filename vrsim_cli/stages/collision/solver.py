@@ -704,8 +704,8 @@ def levels(n_body: int, a, b, movable) -> np.ndarray:
 def solve_resting(bodies: Bodies, c: ContactSet, dt: float, iterations: int, start=None,
                   kink=None):
     """Sequential impulses on the contacts c (restitution 0), then a shock-propagation pass
-    on the normal velocities. Returns
-    the accumulated impulse (k, 3) N s, world, on B of each contact. `start`: (vel,
+    on the normal velocities. Returns the accumulated impulse (k, 3) N s, world, on B of
+    each contact. `start`: (vel,
     angvel) (n, 3) of the bodies at the step's start and `kink` (n, 4): where a point
     that slipped then sticks at the step's end, kink[body] is set to (fraction of the
     step at which its slip stopped, linear velocity (3,) m/s then) (`_patch`).
