@@ -19,6 +19,19 @@ Blocks on an incline (seeds from INCLINED on) are not all held yet: KNOWN_SLIDIN
 dt 1/240 s, verlet): in the 5th step an upper box drops at 0.029 m/s (0.7 g dt) as if
 its support were missing for a step, and the block then creeps. With the warm start
 (before) all of the inclined draws failed too, some less (3.8e-5 against 1.5e-2 m/s).
+
+A weaker truth holds for more of them: a block that friction holds ends at rest (static
+equilibrium), whatever it moved first. The review of the cold start found a 3 x 2 x 2
+block on 10 degrees (mu 0.5, dt 1/60 s) creeping for good, 0.1 m in 3 s: every box slid
+g sin(th) h^2 / 2 down the slope per step in its free flight, and the re-integration that
+takes that back (`response._drift`) skipped the directions of all of a box's contact
+normals, which the neighbours' normals along the slope span. And the few sweeps from zero
+left junk in the velocities (a box spun by friction at a neighbour's corner) that the
+per-body block solves started from (`solver._shock_velocities`, swept). Draws from
+AT_REST_SEEDS: after 1 s every speed <= SPEED_TOL. On the tree before, 13 and 16 were
+still moving (0.035 and 2.7e-5 m/s) and 12 and 15 as now; KNOWN_MOVING (strict) are the
+draws that still are (measured 2026-12-04: 12 at 1.3e-4 m/s after moving 9.6 mm; 15, rk4
+at 1/60 s, at 0.09 m/s).
 """
 
 from __future__ import annotations
@@ -34,7 +47,9 @@ INCLINED = 8  # seeds below: on flat ground; from 8: on an incline that friction
 # flat: every dt (seed % 3) and integrator (seed // 3 % 3) once at least; seeds 4, 5
 # and 7 (the three costliest, 15 s together) are left out for the suite's time
 SEEDS = [0, 1, 2, 3, 6, 8, 9, 10, 11]
-KNOWN_SLIDING = {8, 10}  # measured 2026-12-04: 0.0087 and 0.018 m/s after 1 s
+KNOWN_SLIDING = {8, 10}  # measured 2026-12-04: moved 1.0e-5 and 1.1e-4 m, then held
+AT_REST_SEEDS = list(range(12, 20))  # inclined draws for the at-rest check
+KNOWN_MOVING = {12, 15}
 
 # Held bodies move by round-off only: what the rest solve leaves (<= ~1e-14 m/s per step
 # for 0.1-0.5 m boxes) over 72-288 steps stays far below 1e-9; a kick is >= 1e-3.
@@ -90,3 +105,15 @@ def test_a_block_of_boxes_at_rest_stays_at_rest(seed):
     assert np.abs(final.body_vel[1:]).max() <= SPEED_TOL, case
     assert np.abs(final.body_angvel[1:]).max() <= SPEED_TOL, case
     assert np.abs(final.body_pos - model.body_pos0).max() <= MOVE_TOL, case
+
+
+@pytest.mark.parametrize("seed", [
+    pytest.param(k, marks=pytest.mark.xfail(strict=True, reason=(
+        "an inclined block still moving after 1 s (module docstring)")))
+    if k in KNOWN_MOVING else k for k in AT_REST_SEEDS])
+def test_a_block_that_friction_holds_on_an_incline_ends_at_rest(seed):
+    text, case = draw(seed)
+    assert case[5] > 0.0, case  # an incline
+    _, _, final = simulate(text)
+    assert np.abs(final.body_vel[1:]).max() <= SPEED_TOL, case
+    assert np.abs(final.body_angvel[1:]).max() <= SPEED_TOL, case
