@@ -18,7 +18,7 @@ are exact for constant accelerations).
 The step in which the slip ends was integrated as one ramp of velocity from the step's
 start to its end, so the ball was up to ~1e-4 m off the closed form after t* (1.6e-5 m in
 scenarios/rolling.yaml); the patch solve now reports when in the step the slip stopped
-and the position follows the two ramps (solver._patch, response._tangential_drift).
+and the position follows the two ramps (solver._patch, response._drift).
 """
 
 from __future__ import annotations
