@@ -11,7 +11,7 @@ from vrsim_cli.errors import SimulationError
 from vrsim_cli.model.model import Model
 from vrsim_cli.model.state import State
 from vrsim_cli.stages.dynamics import motion
-from vrsim_cli.stages.dynamics.motion import ENERGY_GROWTH_LIMIT, ORDER
+from vrsim_cli.stages.dynamics.motion import ENERGY_GROWTH_LIMIT, ORDER, guard_order
 
 __all__ = ["ENERGY_GROWTH_LIMIT", "check", "energy"]
 
@@ -52,10 +52,13 @@ def energy_message(model: Model, gain: float, bound: float) -> str:
     """What the energy guard says when it trips (docs/dynamics.md, "Energy guard")."""
     what = (f"grew by {gain:.4g} J in a scene that conserves it" if gain > 0.0 else
             f"fell by {-gain:.4g} J in a scene without damping or impacts, which conserves it")
+    contacts = model.response is not None
     hint = ("; in a scene with contacts, a body pivoting on a resting edge or end also "
             "gains energy from position correction, a known limit (docs/collision-"
-            "response.md, Known limits): a smaller dt shrinks it"
-            if gain > 0.0 and model.response is not None else "")
-    return (f"the energy {what} (bound {bound:.4g} J for {model.integrator}, order "
-            f"{ORDER[model.integrator]}, at dt = {model.dt:.4g} s): the integration blew up "
-            f"or is too coarse; try a smaller dt or another integrator{hint}")
+            "response.md, Known limits), first order in dt"
+            if gain > 0.0 and contacts else "")
+    order = (f"order {guard_order(model)} with contacts" if contacts else
+             f"order {ORDER[model.integrator]}")
+    return (f"the energy {what} (bound {bound:.4g} J for {model.integrator}, {order}, "
+            f"at dt = {model.dt:.4g} s): the integration blew up or is too coarse; try a "
+            f"smaller dt or another integrator{hint}")
