@@ -146,12 +146,6 @@ STEPPED_ORDER = ("stepped mode: kernels/stepped.py solves a pair's points by Gau
                  "(measured with 100 impact sweeps; taken to 5000, pair 13 passes and these "
                  "still do not)")
 KNOWN = {
-    ("pair", "located", 2): "two capsules come to rest against each other on the ground: "
-    "at t = 0.55 s, after a landing located 2.88 ms into the step (impulses of the twins "
-    "equal to 4e-8 N s), the step's resting solve of the two ground pairs and the capsule "
-    "pair, in Gauss-Seidel order (docs/collision-response.md, Known limits), gives the "
-    "twins 0.0454 and 0.0448 N s (since the located landing of a second point, 2026-12-04; "
-    "before, the scene took another path)",
     ("pair", "stepped", 4): STEPPED_ORDER,
     ("pair", "stepped", 7): STEPPED_ORDER,
     ("pair", "stepped", 10): STEPPED_ORDER,

@@ -14,24 +14,22 @@ holds them (tan theta at most 0.8 mu), touching exactly, start at rest: every bo
 where it is. Random draws over block shape (1-3 x 1-3 x 2-3 boxes), box size, mass,
 friction, dt, integrator and incline angle; 1 s each (the kick came after 0.77 s).
 
-Blocks on an incline (seeds from INCLINED on) are not all held yet: KNOWN_SLIDING, strict
-(the day they pass, the mark must go). Traced on one (3 x 3 x 1 boxes, 6.2 deg, mu 0.5,
-dt 1/240 s, verlet): in the 5th step an upper box drops at 0.029 m/s (0.7 g dt) as if
-its support were missing for a step, and the block then creeps. With the warm start
-(before) all of the inclined draws failed too, some less (3.8e-5 against 1.5e-2 m/s).
-
-A weaker truth holds for more of them: a block that friction holds ends at rest (static
-equilibrium), whatever it moved first. The review of the cold start found a 3 x 2 x 2
-block on 10 degrees (mu 0.5, dt 1/60 s) creeping for good, 0.1 m in 3 s: every box slid
-g sin(th) h^2 / 2 down the slope per step in its free flight, and the re-integration that
-takes that back (`response._drift`) skipped the directions of all of a box's contact
-normals, which the neighbours' normals along the slope span. And the few sweeps from zero
-left junk in the velocities (a box spun by friction at a neighbour's corner) that the
-per-body block solves started from (`solver._shock_velocities`, swept). Draws from
-AT_REST_SEEDS: after 1 s every speed <= SPEED_TOL. On the tree before, 13 and 16 were
-still moving (0.035 and 2.7e-5 m/s) and 12 and 15 as now; KNOWN_MOVING (strict) are the
-draws that still are (measured 2026-12-04: 12 at 1.3e-4 m/s after moving 9.6 mm; 15, rk4
-at 1/60 s, at 0.09 m/s).
+Blocks on an incline (seeds from INCLINED on): 11 of the 12 draws are held to 1e-15 m;
+KNOWN_SLIDING (strict, the day it passes the mark must go) moves 1.4e-5 m in its first
+steps and is then held. On e3fedb3 9 of the 12 moved (up to 2.3 cm), 4 were still moving
+after 1 s (up to 0.13 m/s). Causes found and fixed (docs/collision-response.md):
+- the re-integration that takes back each step's slide g sin(th) h^2 / 2 down the slope
+  (`response._drift`) skipped the span of all of a box's contact normals; the
+  neighbours' normals along the slope span it, so the block crept (a 3 x 2 x 2 block on
+  10 degrees, mu 0.5, 1/60 s: 0.1 m in 3 s). Now only its supports' normals close to
+  the main support's are skipped: the contacts of aligned diagonal neighbours touch along
+  an edge with a normal along the slope, and counted as supports they stopped it again;
+- the few sweeps from zero left junk in the velocities the per-body block solves start
+  from (`solver._shock_velocities`, swept);
+- the block solve's rounds ended on a cycle with impulses of other statuses, accepted
+  with a box's four "sticking" corners slipping at 0.24 m/s: it turned at 1.6 rad/s
+  (`solver._admissible`, stuck), and refused answers where its first rounds did not
+  settle (`solver._support`).
 """
 
 from __future__ import annotations
@@ -46,10 +44,8 @@ from conftest import simulate
 INCLINED = 8  # seeds below: on flat ground; from 8: on an incline that friction holds
 # flat: every dt (seed % 3) and integrator (seed // 3 % 3) once at least; seeds 4, 5
 # and 7 (the three costliest, 15 s together) are left out for the suite's time
-SEEDS = [0, 1, 2, 3, 6, 8, 9, 10, 11]
-KNOWN_SLIDING = {8, 10}  # measured 2026-12-04: moved 1.0e-5 and 1.1e-4 m, then held
-AT_REST_SEEDS = list(range(12, 20))  # inclined draws for the at-rest check
-KNOWN_MOVING = {12, 15}
+SEEDS = [0, 1, 2, 3, 6] + list(range(INCLINED, 20))
+KNOWN_SLIDING = {8}  # measured 2026-12-04: moves 1.4e-5 m in its first steps, then held
 
 # Held bodies move by round-off only: what the rest solve leaves (<= ~1e-14 m/s per step
 # for 0.1-0.5 m boxes) over 72-288 steps stays far below 1e-9; a kick is >= 1e-3.
@@ -106,14 +102,3 @@ def test_a_block_of_boxes_at_rest_stays_at_rest(seed):
     assert np.abs(final.body_angvel[1:]).max() <= SPEED_TOL, case
     assert np.abs(final.body_pos - model.body_pos0).max() <= MOVE_TOL, case
 
-
-@pytest.mark.parametrize("seed", [
-    pytest.param(k, marks=pytest.mark.xfail(strict=True, reason=(
-        "an inclined block still moving after 1 s (module docstring)")))
-    if k in KNOWN_MOVING else k for k in AT_REST_SEEDS])
-def test_a_block_that_friction_holds_on_an_incline_ends_at_rest(seed):
-    text, case = draw(seed)
-    assert case[5] > 0.0, case  # an incline
-    _, _, final = simulate(text)
-    assert np.abs(final.body_vel[1:]).max() <= SPEED_TOL, case
-    assert np.abs(final.body_angvel[1:]).max() <= SPEED_TOL, case

@@ -1174,20 +1174,21 @@ def _patch(A, pre, target, mu, slip0=None, strict=False):
     slide = np.zeros(k, bool)
     s = np.zeros((k, 2))
     lam, active, slide, s, settled = _rounds(A, pre, target, mu, active, slide, s, tol_v)
-    if not settled and not _admissible(A, pre, target, lam, tol_v):
+    if not settled and not _admissible(A, pre, target, lam, tol_v, active & ~slide & (mu > 0.0)):
         # again from the points that carry the frictionless problem (`_support`): all
         # the approaching points at once may ask for what no rigid motion does
         support = _support(A[0::3, 0::3], pre[:, 0] + target, tol_v)
         if support is not None:
             again = _rounds(A, pre, target, mu, support > 0.0, np.zeros(k, bool),
                             np.zeros((k, 2)), tol_v)
-            if again[4] or _admissible(A, pre, target, again[0], tol_v):
+            if again[4] or _admissible(A, pre, target, again[0], tol_v,
+                                          again[1] & ~again[2] & (mu > 0.0)):
                 lam, active, slide, s, settled = again
                 settled = True
     # (statuses that cycle end the rounds with the last solution: on a statically
     # indeterminate face that holds, a lightly loaded corner may carry more than its own
     # cone while the face's total is inside; clamping it there let held boxes slide)
-    if not settled and not _admissible(A, pre, target, lam, tol_v):
+    if not settled and not _admissible(A, pre, target, lam, tol_v, active & ~slide & (mu > 0.0)):
         lam, solved = _projected_sweeps(A, pre, target, mu)
         return (lam if solved or not strict else None), None
     if slip0 is None:
@@ -1207,7 +1208,10 @@ def _patch(A, pre, target, mu, slip0=None, strict=False):
     return lam, (frac, lam_slide)
 
 
-def _admissible(A, pre, target, lam, tol_v) -> bool:
+SLIDE_LAW_SLIP = 1e-6  # m/s per m/s of the scale: a sticking point's slip beyond round-off
+
+
+def _admissible(A, pre, target, lam, tol_v, stuck=None) -> bool:
     """Whether impulses lam (k, 3) that `_patch` ended with, without its statuses
     settling, may stand: no normal impulse pulls, no point still approaches beyond its
     allowance, and the kinetic energy does not grow. The last holds for every solution
@@ -1216,12 +1220,24 @@ def _admissible(A, pre, target, lam, tol_v) -> bool:
     so a gain marks a wrong solution. Seen: a box corner sliding down a step's side at
     mu = 1.375 has a negative effective normal mass while it slides (A_nn - mu A_nt < 0,
     Painleve's paradox); the statuses cycled through sticking, sliding and leaving and
-    ended on lam_n = -8.4 N s, which threw a 2.7 kg box at 6 m/s and 42 rad/s."""
+    ended on lam_n = -8.4 N s, which threw a 2.7 kg box at 6 m/s and 42 rad/s.
+
+    stuck: (k,) bool, the points the rounds ended on as sticking: also none of them may
+    slip (more than SLIDE_LAW_SLIP of the scale). Rounds that break off on a cycle end on
+    the last solve's impulses, whose statuses were other ones: a box of a block at rest,
+    alone on the ground, was accepted with its four corners "sticking" and slipping at
+    0.24 m/s, and turned at 1.6 rad/s (an inclined block's kick). (Sticking points whose
+    friction leaves their own cone while the face's total is inside stay admissible, as
+    above.)"""
     size = 1.0 + float(np.abs(lam).max())
     change = matmul(A, lam.ravel())
     v = pre + change.reshape(-1, 3)
     if (lam[:, 0] < -1e-12 * size).any() or (v[:, 0] < -target - tol_v).any():
         return False
+    if stuck is not None and stuck.any():
+        slip = np.sqrt((v[:, 1:] ** 2).sum(1))
+        if (slip[stuck] > (SLIDE_LAW_SLIP / PATCH_TOL) * tol_v).any():
+            return False
     gain = dot(lam.ravel(), pre.ravel() + 0.5 * change)
     return gain <= 1e-12 * size * (1.0 + float(np.abs(pre).max()))
 
