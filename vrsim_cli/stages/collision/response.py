@@ -634,7 +634,8 @@ def _missed_impacts(model, then, bodies, c: Contacts, rows) -> np.ndarray:
     return out
 
 
-PRIMARY_COS = 0.7071  # cos 45 deg: support normals this close to the main one's
+PRIMARY_COS = 0.7071  # cos 45 deg: support normals this close to the supports' sum
+SUPPORT_SHARE = 0.25  # or carrying this share of the supports' normal impulse
 
 
 def _drift(model, last, state, bodies, c: Contacts, rows, kink=None, impulse=None) -> np.ndarray:
@@ -655,16 +656,21 @@ def _drift(model, last, state, bodies, c: Contacts, rows, kink=None, impulse=Non
     fixed ones, or movable ones of a lower shock level, `solver.levels`) the penetration
     pass decides, as the orientation stays the free flight's (a tipping box's centre
     rises and falls with its turn: re-integrating it along the support's normal alone
-    added energy); of those, only the normals within 45 degrees of the main support's
-    (the one with the largest normal impulse, `impulse`: (len(rows), 3) N s). The normals
+    added energy); of those, only the normals within 45 degrees of the supports' sum, or
+    carrying a share of the load (`impulse`: (len(rows), 3) N s, below). The normals
     of contacts with neighbours of the same level or with bodies it carries are not
     removed: a block of boxes on a slope has neighbours' normals along the slope, every
     box had slid down it by the same g sin(th) h^2 / 2, no contact penetrated more for
     it, and when those directions were removed too (all of a body's normals, before) a
-    3 x 2 x 2 block on 10 degrees crept 9 cm in 3 s. Nor those of supports across the
-    main one: aligned boxes touch their diagonal neighbours below along an edge, with a
+    3 x 2 x 2 block on 10 degrees crept 9 cm in 3 s. Nor those of lightly loaded
+    supports across the main direction (the sum of the supports' normal impulses, into
+    the body): aligned boxes touch their diagonal neighbours below along an edge, with a
     normal along the slope as often as across it, and such an edge contact, counted as a
-    support, stopped the drift along the slope again (the block moved 1.7 cm)."""
+    support, stopped the drift along the slope again (the block moved 1.7 cm; taken by
+    the largest single impulse as the main support, a 2 x 2 x 1 block still moved
+    1.4e-5 m). A support that carries SUPPORT_SHARE of the load counts whatever its
+    direction: the two walls of a steep groove both hold a ball, at 87 degrees from
+    their sum (tests/test_position_correction.py)."""
     drift = np.zeros((model.n_body, 3))
     if not len(rows):
         return drift
@@ -684,9 +690,14 @@ def _drift(model, last, state, bodies, c: Contacts, rows, kink=None, impulse=Non
         other = np.where(a == body, b, a)
         support = ((a == body) | (b == body)) & (level[other] < level[body])
         if impulse is not None and support.any():
-            load = (impulse * c.normal[rows]).sum(1)
-            primary = c.normal[rows][np.flatnonzero(support)[np.argmax(load[support])]]
-            support &= np.abs((c.normal[rows] * primary).sum(1)) >= PRIMARY_COS
+            load = np.maximum((impulse * c.normal[rows]).sum(1), 0.0)
+            side = np.where(b == body, 1.0, -1.0)[:, None]  # normals pointing into body
+            total = ((load * support)[:, None] * side * c.normal[rows]).sum(0)
+            size = float(np.sqrt(dot(total, total)))
+            share = load / max(float(load[support].sum()), 1e-300)
+            if size > 0.0:
+                along = side[:, 0] * (c.normal[rows] * (total / size)).sum(1) >= PRIMARY_COS
+                support &= along | (share >= SUPPORT_SHARE)
         d = delta[body].copy()
         basis = []
         for n in c.normal[rows[support]]:  # remove the components along the supports'
