@@ -684,13 +684,14 @@ def _drift(model, last, state, bodies, c: Contacts, rows, kink=None, impulse=Non
     delta = moved - state.body_pos
     a, b = c.body_a[rows], c.body_b[rows]
     level = solver.levels(model.n_body, a, b, bodies.inv_mass > 0.0)
+    if impulse is not None:
+        load = np.maximum((impulse * c.normal[rows]).sum(1), 0.0)  # N s along n
     for body in np.unique(np.concatenate([a, b])).tolist():
         if bodies.inv_mass[body] <= 0.0:
             continue
         other = np.where(a == body, b, a)
         support = ((a == body) | (b == body)) & (level[other] < level[body])
         if impulse is not None and support.any():
-            load = np.maximum((impulse * c.normal[rows]).sum(1), 0.0)
             side = np.where(b == body, 1.0, -1.0)[:, None]  # normals pointing into body
             total = ((load * support)[:, None] * side * c.normal[rows]).sum(0)
             size = float(np.sqrt(dot(total, total)))

@@ -1173,24 +1173,28 @@ def _patch(A, pre, target, mu, slip0=None, strict=False):
     active = pre[:, 0] < -target - tol_v
     slide = np.zeros(k, bool)
     s = np.zeros((k, 2))
-    lam, active, slide, s, settled = _rounds(A, pre, target, mu, active, slide, s, tol_v)
-    if not settled and not _admissible(A, pre, target, lam, tol_v, active & ~slide & (mu > 0.0)):
+
+    def accepted(rounds):  # settled, or a cycle's answer that may stand (`_admissible`)
+        lam, active, slide, _, settled = rounds
+        return settled or _admissible(A, pre, target, lam, tol_v,
+                                      active & ~slide & (mu > 0.0))
+
+    result = _rounds(A, pre, target, mu, active, slide, s, tol_v)
+    if not accepted(result):
         # again from the points that carry the frictionless problem (`_support`): all
         # the approaching points at once may ask for what no rigid motion does
         support = _support(A[0::3, 0::3], pre[:, 0] + target, tol_v)
-        if support is not None:
-            again = _rounds(A, pre, target, mu, support > 0.0, np.zeros(k, bool),
-                            np.zeros((k, 2)), tol_v)
-            if again[4] or _admissible(A, pre, target, again[0], tol_v,
-                                          again[1] & ~again[2] & (mu > 0.0)):
-                lam, active, slide, s, settled = again
-                settled = True
-    # (statuses that cycle end the rounds with the last solution: on a statically
-    # indeterminate face that holds, a lightly loaded corner may carry more than its own
-    # cone while the face's total is inside; clamping it there let held boxes slide)
-    if not settled and not _admissible(A, pre, target, lam, tol_v, active & ~slide & (mu > 0.0)):
-        lam, solved = _projected_sweeps(A, pre, target, mu)
-        return (lam if solved or not strict else None), None
+        again = None if support is None else _rounds(
+            A, pre, target, mu, support > 0.0, np.zeros(k, bool), np.zeros((k, 2)), tol_v)
+        if again is None or not accepted(again):
+            # (statuses that cycle end the rounds with the last solution: on a statically
+            # indeterminate face that holds, a lightly loaded corner may carry more than
+            # its own cone while the face's total is inside; clamping it there let held
+            # boxes slide)
+            lam, solved = _projected_sweeps(A, pre, target, mu)
+            return (lam if solved or not strict else None), None
+        result = again
+    lam, active, slide, s, _ = result
     if slip0 is None:
         return lam, None
     size0 = np.sqrt((slip0 * slip0).sum(1))
