@@ -868,7 +868,7 @@ def _dist_to(pts, i, j):
 
 @kernel
 def _reduce(pts, depth, idx, m, chosen):
-    """At most 4 well-spread points among pts[idx[:m]] (narrowphase._reduce): the
+    """At most 4 well-spread points among pts[idx[:m]] (contacts.reduce_manifold): the
     deepest, then farthest-point sampling; into `chosen` (positions into idx), sorted.
     Returns how many."""
     unique = np.empty(m, np.int64)

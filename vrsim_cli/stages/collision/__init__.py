@@ -8,7 +8,8 @@ Public API (pure functions of model and state, consumed by collision response):
   geom pairs within `collision.tolerance`;
 - `queries.ray_cast`, `queries.sphere_cast`: for navigation, meshes included.
 Modules: shapes (geoms and proxies), broadphase, narrowphase (closed-form pair functions
-and the dispatch table), fcl_adapter (hulls, meshes, cylinders), continuous, meshes
+and the dispatch table), cylinder_pairs (manifolds of box and cylinder pairs around fcl's
+point), fcl_adapter (hulls, meshes, cylinders), continuous, meshes
 (trimesh loading, proxy errors), queries, contacts. trimesh and python-fcl are imported
 only by scenes that need them.
 """

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vrsim_cli.maths.products import norm
+
 
 @dataclass(frozen=True)
 class Contacts:
@@ -59,6 +61,22 @@ class Contacts:
 def no_pair_contacts():
     """The empty result of a pair function: (pair, point, normal, depth) with k = 0."""
     return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+
+
+def reduce_manifold(points, depth, keep: int = 4):
+    """At most `keep` well-spread points: the deepest, then farthest-point sampling."""
+    unique = [0]
+    for i in range(1, len(points)):
+        if min(norm(points[i] - points[j]) for j in unique) > 1e-9:
+            unique.append(i)
+    if len(unique) <= keep:
+        return unique
+    chosen = [max(unique, key=lambda i: depth[i])]
+    while len(chosen) < keep:
+        chosen.append(max((i for i in unique if i not in chosen),
+                          key=lambda i: min(norm(points[i] - points[j])
+                                            for j in chosen)))
+    return sorted(chosen)
 
 
 def to_contacts(cm, ia, ib, pair, point, normal, depth, toi=None) -> Contacts:

@@ -7,8 +7,9 @@ where ia, ib (P,) are geom indices of P candidate pairs, `pair` says which candi
 of the k contacts belongs to, normal points from geom ia to geom ib, and only contacts with
 depth >= -margin are returned. `point` is the midpoint of the two witness points.
 Triangle meshes against spheres, capsules and boxes are in `mesh_pairs`. Pairs without
-a closed form here (cylinder, convex hull, mesh against the others) go to python-fcl
-(`fcl_adapter`).
+a closed form here (convex hull, mesh against the others) go to python-fcl
+(`fcl_adapter`); box–cylinder and cylinder–cylinder take fcl's deepest point and build a
+face manifold around it (`cylinder_pairs`).
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ from vrsim_cli.maths.products import matmul, norm
 from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
 from vrsim_cli.maths.triangles import box_sdf as _box_sdf
 from vrsim_cli.maths.triangles import closest_segment_points
-from vrsim_cli.stages.collision import fcl_adapter, mesh_pairs
-from vrsim_cli.stages.collision.contacts import no_pair_contacts
+from vrsim_cli.stages.collision import cylinder_pairs, fcl_adapter, mesh_pairs
+from vrsim_cli.stages.collision.contacts import no_pair_contacts, reduce_manifold
 
 _EPS = 1e-12
 _UP = np.array([0.0, 1.0, 0.0])
@@ -367,22 +368,6 @@ def _face_points(fc, n, u, v, hu, hv, inc_c, inc_n, inc_u, inc_v, inc_hu, inc_hv
     return base + height[..., None] * n[:, None], height, ok
 
 
-def _reduce(points, depth, keep: int = 4):
-    """At most `keep` well-spread points: the deepest, then farthest-point sampling."""
-    unique = [0]
-    for i in range(1, len(points)):
-        if min(norm(points[i] - points[j]) for j in unique) > 1e-9:
-            unique.append(i)
-    if len(unique) <= keep:
-        return unique
-    chosen = [max(unique, key=lambda i: depth[i])]
-    while len(chosen) < keep:
-        chosen.append(max((i for i in unique if i not in chosen),
-                          key=lambda i: min(norm(points[i] - points[j])
-                                            for j in chosen)))
-    return sorted(chosen)
-
-
 def _sat(world, ia, ib, hb=None):
     """The 15 separating axes of box pairs (P, 15, 3) (unit; 3 + 3 face normals, 9 edge
     crosses), the centres' distance along them (P, 15) and the overlap of the two
@@ -496,7 +481,7 @@ def box_box(cm, world, ia, ib, margin):
                 out.append((sel[q:q + 1], mid[None], nj[q][None],
                             overlap[sel[q], axis[job[q]]][None]))
                 continue
-            chosen = idx[_reduce(pts[q, idx], depth[q, idx])]
+            chosen = idx[reduce_manifold(pts[q, idx], depth[q, idx])]
             mid = pts[q, chosen] + nr[q] * (0.5 * depth[q, chosen])[:, None]
             out.append((np.full(len(chosen), sel[q]), mid, np.repeat(nj[q][None],
                         len(chosen), axis=0), depth[q, chosen]))
@@ -576,6 +561,8 @@ DISPATCH = {
     (BOX, BOX): box_box,
     (PLANE, CYLINDER): plane_cylinder,
     (CYLINDER, SPHERE): cylinder_sphere,
+    (BOX, CYLINDER): cylinder_pairs.box_cylinder,
+    (CYLINDER, CYLINDER): cylinder_pairs.cylinder_cylinder,
     (PLANE, CONVEX): plane_vertices,
     (PLANE, MESH): plane_vertices,
     (MESH, SPHERE): mesh_pairs.mesh_sphere,

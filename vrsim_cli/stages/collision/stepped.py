@@ -60,8 +60,9 @@ def tables(model: Model, dynamics) -> dict:
     gf[:, kc.G_MOVES] = np.asarray(model.body_type)[cm.geom_body] != BODY_STATIC
     kind = cm.geom_type
     python = (kind == CONVEX) | (kind == MESH) | cm.geom_world_aabb
-    # a cylinder meets a box, a capsule or a cylinder: fcl's (all its pairs then go to
-    # Python, so a body is never split between the two detections)
+    # a cylinder meets a box, a capsule or a cylinder: Python's narrow phase (fcl, and
+    # `cylinder_pairs`' manifolds; all its pairs then go to Python, so a body is never
+    # split between the two detections)
     others = set(kind[~python].tolist())
     if (CYLINDER in others) and (others & {BOX, CAPSULE}) or (kind == CYLINDER).sum() > 1:
         python |= kind == CYLINDER

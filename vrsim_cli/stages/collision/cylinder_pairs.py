@@ -1,0 +1,309 @@
+"""Contact manifolds of cylinder pairs: a box and a cylinder, two cylinders.
+
+python-fcl (GJK/EPA, `fcl_adapter`) finds such a pair's deepest point and normal, and
+nothing else: a cylinder standing on a box, a box on a cylinder's cap or cylinders end
+on end rested on that one point and rocked (a 1 kg box on a cylinder at 1 rad/s for
+seconds). Here fcl's normal picks the features that face each other (Box2D's and ODE's
+reference-face clipping, as `narrowphase.box_box`):
+
+- a box face: the face whose normal is closest to the direction;
+- a cylinder cap: a disc, as 8 points of its rim at 45 deg steps;
+- a cylinder side: the segment of the side nearest along the direction.
+
+When a box face or a cap lies across the normal (within ALIGN_COS, ~0.01 rad) it is the
+reference face: the normal becomes its normal exactly, the other shape's facing feature
+(face, cap or side segment) is clipped to its side planes, and every clipped point gets
+its own depth below the reference plane. A tilted cap (beyond ALIGN_COS) starts its rim
+polygon at its lowest rim point, so that point is exact (as `narrowphase.plane_cylinder`),
+and keeps the deepest and best spread KEEP points. A cap lying nearly flat on the other
+face, and a reference cap, keep their rim polygon fixed in the body (at the local x) and
+all their points; a flat incident cap adds its exact lowest rim point. (Turned with the
+tilt's direction, which changes with every wobble, the points went round the rim from
+step to step: stepped mode's warm start, which matches contacts by their rank in the
+pair, then kept a box on a cylinder jittering at ~5e-3 rad/s.) The contact area of a flat
+cap is the octagon inscribed in its disc (reach r cos(pi / 8) = 0.924 r in its worst
+direction). Two cylinders lying side by side (parallel axes) touch along a line: its two
+ends. Anything else (an edge on a rim, crossed sides, a rim on a rim) keeps fcl's
+contacts, as before.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from vrsim_cli.model.collision import BOX, CYLINDER
+from vrsim_cli.stages.collision import fcl_adapter
+from vrsim_cli.stages.collision.contacts import no_pair_contacts, reduce_manifold
+
+KEEP = 4  # contacts kept of a tilted cap or a face (as box_box and plane_cylinder)
+ALIGN_COS = 1.0 - 5e-5  # a face within ~0.01 rad of the normal is the reference face
+PARALLEL_COS = 1.0 - 1e-12  # axes this close are parallel (two lying cylinders)
+TIE_TOL = 1e-9  # m: depths this close are equal when picking the points to keep
+CAP_COS = math.sqrt(0.5)  # a cylinder faces a direction with its cap when |axis . d| >= this
+# fcl's deepest point lying deeper than the clipped manifold's by more than this (m, plus
+# DEPTH_SHARE of the depth) is not on the face pair: fcl's contacts stay
+DEPTH_TOL, DEPTH_SHARE = 1e-6, 1e-3
+
+
+def box_cylinder(cm, world, ia, ib, margin):
+    """Box ia against cylinder ib (narrowphase's signature: normals from ia to ib)."""
+    return _pairs(cm, world, ia, ib, margin)
+
+
+def cylinder_cylinder(cm, world, ia, ib, margin):
+    """Cylinder ia against cylinder ib."""
+    return _pairs(cm, world, ia, ib, margin)
+
+
+def _pairs(cm, world, ia, ib, margin):
+    pair, point, normal, depth = fcl_adapter.pair_contacts(cm, world, ia, ib, margin)
+    out = []
+    for p in range(len(ia)):
+        a, b = int(ia[p]), int(ib[p])
+        rows = np.flatnonzero(pair == p)
+        if len(rows):
+            deepest = rows[int(np.argmax(depth[rows]))]
+            got = manifold(cm, world, a, b, normal[deepest], float(depth[deepest]), margin)
+        else:
+            # fcl saw nothing within the margin, but it misses shapes that touch (a
+            # cylinder resting on a box's face: then it fell for a step every few
+            # steps and crept down a slope): the faces' own separating axis decides
+            axis, gap = face_axis(cm, world, a, b)
+            got = manifold(cm, world, a, b, axis, -gap, margin) if gap <= margin else None
+        if got is None:
+            out.append((pair[rows], point[rows], normal[rows], depth[rows]))
+        else:
+            pts, n, d = got
+            out.append((np.full(len(d), p), pts, np.repeat(n[None], len(d), axis=0), d))
+    if not out:
+        return no_pair_contacts()
+    return tuple(np.concatenate(x) for x in zip(*out))
+
+
+def _extent(cm, world, g, d):
+    """Half the extent (m) of geom g (box or cylinder) along unit direction d."""
+    R = world.rot[g]
+    if cm.geom_type[g] == BOX:
+        return float(np.abs(R.T @ d) @ world.half[g])
+    along = abs(float(R[:, 1] @ d))
+    return world.half[g][1] * along + cm.geom_radius[g] * math.sqrt(max(0.0, 1.0 - along * along))
+
+
+def face_axis(cm, world, a, b):
+    """Of the face normals of geoms a and b (a box's three axes, a cylinder's axis), the
+    one along which the two are farthest apart (the separating-axis test over faces):
+    (unit normal from a to b, separation m; negative: overlap)."""
+    centre = world.pos[b] - world.pos[a]
+    best, best_gap = None, -np.inf
+    for g in (a, b):
+        R = world.rot[g]
+        axes = (R[:, 0], R[:, 1], R[:, 2]) if cm.geom_type[g] == BOX else (R[:, 1],)
+        for axis in axes:
+            along = float(axis @ centre)
+            d = axis if along >= 0.0 else -axis
+            gap = abs(along) - _extent(cm, world, a, d) - _extent(cm, world, b, d)
+            if gap > best_gap:
+                best, best_gap = d, gap
+    return best, best_gap
+
+
+# ----------------------------------------------------------------------------- features
+
+
+def _face(cm, world, g, d):
+    """The face of geom g (a box face, a cylinder cap) facing direction d (unit, world):
+    (outward normal, vertices (m, 3) in cyclic order, |normal . d|), or None for a
+    cylinder whose cap does not face d."""
+    c, R = world.pos[g], world.rot[g]
+    if cm.geom_type[g] == BOX:
+        local = R.T @ d
+        k = int(np.argmax(np.abs(local)))
+        s = 1.0 if local[k] >= 0.0 else -1.0
+        nf = s * R[:, k]
+        u, v = R[:, (k + 1) % 3], R[:, (k + 2) % 3]
+        h = world.half[g]
+        hu, hv = h[(k + 1) % 3], h[(k + 2) % 3]
+        centre = c + nf * h[k]
+        signs = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
+        return nf, np.array([centre + a * hu * u + b * hv * v for a, b in signs]), abs(local[k])
+    axis = R[:, 1]
+    along = float(axis @ d)
+    if abs(along) < CAP_COS:
+        return None
+    nf = axis if along >= 0.0 else -axis
+    centre = c + nf * world.half[g][1]
+    return nf, _rim(centre, nf, R, d, cm.geom_radius[g]), abs(along)
+
+
+def _radial(R, d):
+    """The unit direction of d across the cylinder's axis (its local x when d lies
+    along the axis)."""
+    axis = R[:, 1]
+    radial = d - (axis @ d) * axis
+    length = math.sqrt(radial @ radial)
+    return radial / length if length > 1e-9 else R[:, 0]
+
+
+def _rim(centre, nf, R, d, r):
+    """The 8 rim points of the cap at `centre` (normal nf) at 45 deg steps, the first
+    the deepest along d."""
+    u = _radial(R, d)
+    w = np.cross(nf, u)
+    return centre + r * (_RIM[:, :1] * u + _RIM[:, 1:] * w)
+
+
+_C45 = math.sqrt(0.5)
+_RIM = np.array([(1.0, 0.0), (_C45, _C45), (0.0, 1.0), (-_C45, _C45), (-1.0, 0.0),
+                 (-_C45, -_C45), (0.0, -1.0), (_C45, -_C45)])  # cos, sin: cyclic
+
+
+def _incident(cm, world, g, d):
+    """The feature of geom g facing direction d: a box face or a cap (polygon, closed)
+    or a cylinder's side segment (open). Returns (points (m, 3), closed)."""
+    face = _face(cm, world, g, d)
+    if face is not None:
+        return face[1], True
+    c, R = world.pos[g], world.rot[g]
+    axis, h = R[:, 1], world.half[g][1]
+    line = c + cm.geom_radius[g] * _radial(R, d)
+    return np.array([line - h * axis, line + h * axis]), False
+
+
+# ----------------------------------------------------------------------------- clipping
+
+
+def _clip(points, closed, planes):
+    """Sutherland-Hodgman: the part of a convex polygon (closed) or a segment (open, 2
+    points), points (m, 3), on the inner side of every plane (unit normal s, offset o):
+    s . x <= o."""
+    pts = [np.asarray(p, float) for p in points]
+    for s, o in planes:
+        if not pts:
+            break
+        dist = [float(s @ p) - o for p in pts]
+        if not closed:  # a segment: keep its inner part
+            (p, q), (dp, dq) = pts, dist
+            if dp > 0.0 and dq > 0.0:
+                return []
+            if dp > 0.0:
+                pts = [p + (dp / (dp - dq)) * (q - p), q]
+            elif dq > 0.0:
+                pts = [p, p + (dp / (dp - dq)) * (q - p)]
+            continue
+        out = []
+        for i in range(len(pts)):
+            j = (i + 1) % len(pts)
+            p, q, dp, dq = pts[i], pts[j], dist[i], dist[j]
+            if dp <= 0.0:
+                out.append(p)
+            if (dp < 0.0 < dq) or (dq < 0.0 < dp):
+                out.append(p + (dp / (dp - dq)) * (q - p))
+        pts = out
+    return pts
+
+
+def _side_planes(verts, nf):
+    """The side planes (outward normal, offset) of a convex face (vertices in cyclic
+    order, normal nf): the planes through its edges along nf."""
+    centre = verts.mean(axis=0)
+    planes = []
+    for i in range(len(verts)):
+        e = verts[(i + 1) % len(verts)] - verts[i]
+        s = np.cross(e, nf)
+        length = math.sqrt(s @ s)
+        if not length > 0.0:
+            continue
+        s = s / length
+        if s @ (centre - verts[i]) > 0.0:
+            s = -s
+        planes.append((s, float(s @ verts[i])))
+    return planes
+
+
+def manifold(cm, world, a, b, n0, depth0, margin):
+    """The manifold of geoms a and b (box or cylinder) around fcl's deepest contact
+    (normal n0 from a to b, depth0 m): (points (k, 3), normal a -> b, depths (k,)), or
+    None when no face lies across n0 or the deepest point is not on the faces' overlap."""
+    n0 = np.asarray(n0, float)
+    fa, fb = _face(cm, world, a, n0), _face(cm, world, b, -n0)
+    ref = None
+    if fa is not None and fa[2] >= ALIGN_COS and (fb is None or fa[2] >= fb[2]):
+        ref, inc, sign = fa, b, 1.0
+    elif fb is not None and fb[2] >= ALIGN_COS:
+        ref, inc, sign = fb, a, -1.0
+    if ref is None:
+        return _parallel_sides(cm, world, a, b, n0, depth0, margin)
+    nf, verts, _ = ref
+    keep = KEEP
+    g_ref = a if sign > 0.0 else b
+    if cm.geom_type[g_ref] == CYLINDER:
+        # a reference cap's rim polygon fixed in its body (at its local x), not turned
+        # with the normal (module docstring); all the corners the other face covers
+        verts = _rim(verts.mean(axis=0), nf, world.rot[g_ref], nf, cm.geom_radius[g_ref])
+        keep = len(_RIM)
+    pts, closed = _incident(cm, world, inc, -nf)
+    planes = _side_planes(verts, nf)
+    lowest = []
+    if cm.geom_type[inc] == CYLINDER and closed and \
+            abs(float(world.rot[inc][:, 1] @ nf)) >= ALIGN_COS:
+        # a cap lying nearly flat on the reference face: its rim polygon fixed in its
+        # body too, and its lowest rim point (pts[0]) besides, which the polygon misses
+        # by up to r (1 - cos(pi / 8)) sin(tilt)
+        R = world.rot[inc]
+        if all(float(s @ pts[0]) <= o for s, o in planes):
+            lowest = [pts[0]]
+        cap = R[:, 1] if float(R[:, 1] @ nf) <= 0.0 else -R[:, 1]  # its outward normal
+        pts = _rim(pts.mean(axis=0), cap, R, R[:, 1], cm.geom_radius[inc])
+        keep = len(_RIM) + 1
+    clipped = _clip(pts, closed, planes)
+    if not clipped and not lowest:
+        return None
+    q = np.array(clipped + lowest)
+    depth = float(nf @ verts[0]) - q @ nf  # how far below the reference plane
+    return _finish(q, depth, nf, sign, depth0, margin, keep)
+
+
+def _finish(q, depth, nf, sign, depth0, margin, keep=KEEP):
+    """Points q (k, 3) on the incident surface at `depth` below the reference plane
+    (normal nf towards them): the contacts (midpoints) within margin, at most `keep` of
+    them (`reduce_manifold`); None when none is, or when fcl's deepest is clearly deeper
+    than them."""
+    near = depth >= -margin
+    if not near.any() or depth.max() < depth0 - DEPTH_TOL - DEPTH_SHARE * abs(depth0):
+        return None
+    q, depth = q[near], depth[near]
+    # points as deep as the deepest to TIE_TOL count as equally deep, so the first of
+    # them starts the reduction (round-off does not pick another subset every step)
+    ties = np.where(depth >= depth.max() - TIE_TOL, depth.max(), depth)
+    chosen = reduce_manifold(q, ties, keep)
+    q, depth = q[chosen], depth[chosen]
+    return q + nf * (0.5 * depth)[:, None], sign * nf, depth
+
+
+def _parallel_sides(cm, world, a, b, n0, depth0, margin):
+    """Two cylinders lying side by side (parallel axes, n0 across them): the two ends of
+    the line they touch along, or None."""
+    if not (cm.geom_type[a] == CYLINDER and cm.geom_type[b] == CYLINDER):
+        return None
+    Ra, Rb = world.rot[a], world.rot[b]
+    if abs(float(Ra[:, 1] @ Rb[:, 1])) < PARALLEL_COS:
+        return None
+    axis = Ra[:, 1]
+    across = world.pos[b] - world.pos[a]
+    across = across - (across @ axis) * axis
+    length = math.sqrt(across @ across)
+    if not length > 0.0 or abs(float(n0 @ across)) < ALIGN_COS * length:
+        return None
+    nf = across / length  # from a's axis to b's, exactly across both
+    seg, _ = _incident(cm, world, b, -nf)
+    top = world.pos[a] + cm.geom_radius[a] * nf  # a's side line along nf
+    ha = world.half[a][1]
+    planes = [(axis, float(axis @ (top + ha * axis))), (-axis, float(-axis @ (top - ha * axis)))]
+    clipped = _clip(seg, False, planes)
+    if not clipped:
+        return None
+    q = np.array(clipped)
+    depth = float(nf @ top) - q @ nf
+    return _finish(q, depth, nf, 1.0, depth0, margin)
