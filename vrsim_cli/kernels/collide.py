@@ -62,6 +62,7 @@ UP = (0.0, 1.0, 0.0)
 LARGE_FACTOR = 8.0  # as broadphase: boxes larger than this many median sizes go to all
 GOLDEN_ITERATIONS = 48
 PARALLEL_SIN = 1e-3
+FLAT_COS = 1.0 - 5e-5  # as narrowphase.FLAT_COS: a cap this close to a plane lies flat
 MAX_PER_PAIR = 8  # contacts one pair function can make (box_box: two faces' 4)
 TIE_TOL = 1e-9  # as narrowphase.TIE_TOL
 PARALLEL_COS = 1e-9  # as narrowphase.PARALLEL_COS
@@ -620,12 +621,30 @@ def plane_box(gf, W, ga, gb, margin, C, k):
 @kernel
 def plane_cylinder(gf, W, ga, gb, margin, C, k):
     """Half-space against the rims of both caps: on each cap the lowest rim point, its
-    opposite and the two between."""
+    opposite and the two between; a cap lying flat (FLAT_COS): four rim points fixed in
+    the body and the lowest rim point, all in candidate order (narrowphase's)."""
     n = (gf[ga, G_PN], gf[ga, G_PN + 1], gf[ga, G_PN + 2])
     c, R = _pos(W, gb), _rot(W, gb)
     axis = _col(R, 1)
     h, r = gf[gb, G_HALF + 1], gf[gb, G_RADIUS]
     radial = la.sub(n, la.scale(la.dot(n, axis), axis))
+    along = la.dot(n, axis)
+    if abs(along) >= FLAT_COS:
+        s = -1.0 if along > 0.0 else 1.0
+        centre = la.add(c, la.scale(s * h, axis))
+        x, z = _col(R, 0), _col(R, 2)
+        length = la.norm(radial)
+        low = la.scale(-1.0 / length if length > 1e-9 else 0.0, radial)
+        count = 0
+        for j in range(5 if length > 1e-9 else 4):
+            d = x if j == 0 else z if j == 1 else la.scale(-1.0, x) if j == 2 else \
+                la.scale(-1.0, z) if j == 3 else low
+            p = la.add(centre, la.scale(r, d))
+            depth = gf[ga, G_PO] - la.dot(n, p)
+            if depth >= -margin:
+                _put(C, k + count, la.add(p, la.scale(0.5 * depth, n)), n, depth)
+                count += 1
+        return count
     fallback = _col(R, 0)
     u, length = _unit(radial, fallback)
     if not length > 1e-9:

@@ -177,10 +177,52 @@ def _deepest(pair, points, depth, n, margin, keep: int = 4):
                  depth.reshape(-1), margin)
 
 
+FLAT_COS = 1.0 - 5e-5  # a cap within ~0.01 rad of a plane lies flat on it
+
+
 def plane_cylinder(cm, world, ia, ib, margin):
     """Half-space against the rims of both caps: on each cap the lowest rim point (along
-    -n), its opposite and the two between, so a cylinder standing on a cap gets four
-    points and a tilted one its single lowest rim point."""
+    -n), its opposite and the two between, so a tilted cylinder gets its single lowest
+    rim point. A cap lying flat (within FLAT_COS) gets four rim points fixed in the body
+    (at its local x and z) and its lowest rim point besides, all of them: turned with the
+    tilt's direction, which changes with every wobble, the points went round the rim from
+    step to step, and stepped mode's warm start (by rank in the pair) kept a loaded
+    cylinder jittering; kept in candidate order, the ranks stay."""
+    out = [_plane_cylinder(cm, world, ia, ib, margin)]
+    n = cm.geom_plane_normal[ia]
+    along = _dot(n, world.rot[ib][:, :, 1])
+    flat = np.flatnonzero(np.abs(along) >= FLAT_COS)
+    if len(flat):
+        keep = ~np.isin(out[0][0], flat)
+        out[0] = tuple(x[keep] for x in out[0])
+        out.append(_flat_cap(cm, world, ia, ib, flat, margin))
+    pair, point, normal, depth = (np.concatenate(x) for x in zip(*out))
+    order = np.argsort(pair, kind="stable")
+    return pair[order], point[order], normal[order], depth[order]
+
+
+def _flat_cap(cm, world, ia, ib, rows, margin):
+    """plane_cylinder's contacts of the pairs `rows` whose lower cap lies flat."""
+    n = cm.geom_plane_normal[ia[rows]]
+    R = world.rot[ib[rows]]
+    axis = R[:, :, 1]
+    h, r = world.half[ib[rows]][:, 1], cm.geom_radius[ib[rows]]
+    s = np.where(_dot(n, axis) > 0.0, -1.0, 1.0)  # the cap whose normal s axis faces -n
+    centre = world.pos[ib[rows]] + (s * h)[:, None] * axis
+    x, z = R[:, :, 0], R[:, :, 2]
+    radial = n - _dot(n, axis)[:, None] * axis
+    length = np.linalg.norm(radial, axis=1)
+    u = -radial / np.where(length > 1e-9, length, 1.0)[:, None]  # towards -n
+    pts = np.stack([x, z, -x, -z, u], axis=1) * r[:, None, None] + centre[:, None, :]
+    depth = cm.geom_plane_offset[ia[rows]][:, None] - _dot(n[:, None, :], pts)
+    ok = depth >= -margin
+    ok[:, 4] &= length > 1e-9  # upright: the lowest point is every rim point
+    mid = pts + n[:, None, :] * (0.5 * depth)[..., None]
+    pair = np.repeat(rows, 5).reshape(-1, 5)
+    return (pair[ok], mid[ok], np.repeat(n[:, None, :], 5, axis=1)[ok], depth[ok])
+
+
+def _plane_cylinder(cm, world, ia, ib, margin):
     n = cm.geom_plane_normal[ia]
     axis = world.rot[ib][:, :, 1]
     h, r = world.half[ib][:, 1], cm.geom_radius[ib]
