@@ -25,6 +25,14 @@ cap is the octagon inscribed in its disc (reach r cos(pi / 8) = 0.924 r in its w
 direction). Two cylinders lying side by side (parallel axes) touch along a line: its two
 ends. Anything else (an edge on a rim, crossed sides, a rim on a rim) keeps fcl's
 contacts, as before.
+
+fcl is not trusted where shapes touch: it misses them now and then, and its probe for
+them (`fcl_adapter._touching`) can answer with a normal across a face (a can resting on
+a wide box 2.5 m from its centre got (-0.70, -0.10, -0.70)). So the faces' separating
+axis (`face_axis`: a box's three axes, a cylinder's axis, the one along which the two
+are farthest apart) is computed too, and wins when fcl found nothing or when it
+separates the two at least as far as fcl's normal does (`separation`, exact for boxes
+and cylinders; no direction separates two convex shapes more than the contact normal).
 """
 
 from __future__ import annotations
@@ -41,6 +49,7 @@ KEEP = 4  # contacts kept of a tilted cap or a face (as box_box and plane_cylind
 ALIGN_COS = 1.0 - 5e-5  # a face within ~0.01 rad of the normal is the reference face
 PARALLEL_COS = 1.0 - 1e-12  # axes this close are parallel (two lying cylinders)
 TIE_TOL = 1e-9  # m: depths this close are equal when picking the points to keep
+SAT_TOL = 1e-9  # of 1 m + the gap: separations this close along two axes are equal
 CAP_COS = math.sqrt(0.5)  # a cylinder faces a direction with its cap when |axis . d| >= this
 # fcl's deepest point lying deeper than the clipped manifold's by more than this (m, plus
 # DEPTH_SHARE of the depth) is not on the face pair: fcl's contacts stay
@@ -63,15 +72,23 @@ def _pairs(cm, world, ia, ib, margin):
     for p in range(len(ia)):
         a, b = int(ia[p]), int(ib[p])
         rows = np.flatnonzero(pair == p)
+        axis, gap = face_axis(cm, world, a, b)
+        got = None
         if len(rows):
             deepest = rows[int(np.argmax(depth[rows]))]
-            got = manifold(cm, world, a, b, normal[deepest], float(depth[deepest]), margin)
-        else:
-            # fcl saw nothing within the margin, but it misses shapes that touch (a
-            # cylinder resting on a box's face: then it fell for a step every few
-            # steps and crept down a slope): the faces' own separating axis decides
-            axis, gap = face_axis(cm, world, a, b)
-            got = manifold(cm, world, a, b, axis, -gap, margin) if gap <= margin else None
+            n0 = np.asarray(normal[deepest], float)
+            if gap < separation(cm, world, a, b, n0) - SAT_TOL * (1.0 + abs(gap)):
+                got = manifold(cm, world, a, b, n0, float(depth[deepest]), margin)
+        # fcl saw nothing within the margin, or its normal separates the two less than a
+        # face's does: shapes that touch, where fcl misses them (a cylinder resting on a
+        # box's face fell for a step every few steps and crept down a slope) or its
+        # probe returns a normal across the face (a can sliding on a wide box, 2.5 m
+        # from its centre, was stopped sideways and spun at 2 rad/s in stepped mode):
+        # the faces' own separating axis decides, as in box_box
+        if got is None and gap <= margin and (not len(rows) or
+                                               gap >= separation(cm, world, a, b, n0) -
+                                               SAT_TOL * (1.0 + abs(gap))):
+            got = manifold(cm, world, a, b, axis, -gap, margin)
         if got is None:
             out.append((pair[rows], point[rows], normal[rows], depth[rows]))
         else:
@@ -91,9 +108,19 @@ def _extent(cm, world, g, d):
     return world.half[g][1] * along + cm.geom_radius[g] * math.sqrt(max(0.0, 1.0 - along * along))
 
 
+def separation(cm, world, a, b, d):
+    """How far apart (m; negative: overlapping) geoms a and b are along unit direction d
+    (from a to b): the gap between their projections, exact for boxes and cylinders. No
+    direction separates them more than the contact normal does (the separating-axis
+    theorem for convex shapes)."""
+    return float((world.pos[b] - world.pos[a]) @ d) - _extent(cm, world, a, d) - \
+        _extent(cm, world, b, d)
+
+
 def face_axis(cm, world, a, b):
     """Of the face normals of geoms a and b (a box's three axes, a cylinder's axis), the
-    one along which the two are farthest apart (the separating-axis test over faces):
+    one along which the two are farthest apart (the separating-axis test over faces; of
+    axes within ALIGN_COS of each other or equal to SAT_TOL the first, a's before b's):
     (unit normal from a to b, separation m; negative: overlap)."""
     centre = world.pos[b] - world.pos[a]
     best, best_gap = None, -np.inf
@@ -101,10 +128,14 @@ def face_axis(cm, world, a, b):
         R = world.rot[g]
         axes = (R[:, 0], R[:, 1], R[:, 2]) if cm.geom_type[g] == BOX else (R[:, 1],)
         for axis in axes:
-            along = float(axis @ centre)
-            d = axis if along >= 0.0 else -axis
-            gap = abs(along) - _extent(cm, world, a, d) - _extent(cm, world, b, d)
-            if gap > best_gap:
+            d = axis if float(axis @ centre) >= 0.0 else -axis
+            gap = separation(cm, world, a, b, d)
+            # of two axes within ALIGN_COS of each other, the first (a's): two nearly
+            # parallel caps swapped the normal with every wobble, and stepped mode's warm
+            # start, by rank, left a cylinder on a cylinder jittering
+            if best is not None and abs(float(d @ best)) >= ALIGN_COS:
+                continue
+            if best is None or gap > best_gap + SAT_TOL * (1.0 + abs(best_gap)):
                 best, best_gap = d, gap
     return best, best_gap
 
