@@ -14,8 +14,8 @@ holds them (tan theta at most 0.8 mu), touching exactly, start at rest: every bo
 where it is. Random draws over block shape (1-3 x 1-3 x 2-3 boxes), box size, mass,
 friction, dt, integrator and incline angle; 1 s each (the kick came after 0.77 s).
 
-Blocks on an incline (seeds from INCLINED on): all 12 draws are held to 3e-15 m
-(KNOWN_SLIDING, strict xfails, is empty). On e3fedb3 9 of the 12 moved (up to 2.3 cm),
+Blocks on an incline (seeds from INCLINED on): all 12 draws are held to 3e-15 m (draw
+8 moved 1.4e-5 m until 2026-12-04). On e3fedb3 9 of the 12 moved (up to 2.3 cm),
 4 were still moving after 1 s (up to 0.13 m/s). Causes found and fixed (docs/collision-response.md):
 - the re-integration that takes back each step's slide g sin(th) h^2 / 2 down the slope
   (`response._drift`) skipped the span of all of a box's contact normals; the
@@ -46,7 +46,6 @@ INCLINED = 8  # seeds below: on flat ground; from 8: on an incline that friction
 # flat: every dt (seed % 3) and integrator (seed // 3 % 3) once at least; seeds 4, 5
 # and 7 (the three costliest, 15 s together) are left out for the suite's time
 SEEDS = [0, 1, 2, 3, 6] + list(range(INCLINED, 20))
-KNOWN_SLIDING: set[int] = set()  # none since 2026-12-04 (draw 8 moved 1.4e-5 m before)
 
 # Held bodies move by round-off only: what the rest solve leaves (<= ~1e-14 m/s per step
 # for 0.1-0.5 m boxes) over 72-288 steps stays far below 1e-9; a kick is >= 1e-3.
@@ -92,10 +91,7 @@ bodies:
     return text, (nx, ny, nz, size, mu, math.degrees(theta), dt, integrator)
 
 
-@pytest.mark.parametrize("seed", [
-    pytest.param(k, marks=pytest.mark.xfail(strict=True, reason=(
-        "a block on an incline: an upper box drops for a step, then the block creeps "
-        "(module docstring)"))) if k in KNOWN_SLIDING else k for k in SEEDS])
+@pytest.mark.parametrize("seed", SEEDS)
 def test_a_block_of_boxes_at_rest_stays_at_rest(seed):
     text, case = draw(seed)
     model, _, final = simulate(text)

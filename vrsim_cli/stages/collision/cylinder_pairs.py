@@ -74,10 +74,12 @@ def _pairs(cm, world, ia, ib, margin):
         rows = np.flatnonzero(pair == p)
         axis, gap = face_axis(cm, world, a, b)
         got = None
+        face_wins = True
         if len(rows):
             deepest = rows[int(np.argmax(depth[rows]))]
             n0 = np.asarray(normal[deepest], float)
-            if gap < separation(cm, world, a, b, n0) - SAT_TOL * (1.0 + abs(gap)):
+            face_wins = gap >= separation(cm, world, a, b, n0) - SAT_TOL * (1.0 + abs(gap))
+            if not face_wins:
                 got = manifold(cm, world, a, b, n0, float(depth[deepest]), margin)
         # fcl saw nothing within the margin, or its normal separates the two less than a
         # face's does: shapes that touch, where fcl misses them (a cylinder resting on a
@@ -85,9 +87,7 @@ def _pairs(cm, world, ia, ib, margin):
         # probe returns a normal across the face (a can sliding on a wide box, 2.5 m
         # from its centre, was stopped sideways and spun at 2 rad/s in stepped mode):
         # the faces' own separating axis decides, as in box_box
-        if got is None and gap <= margin and (not len(rows) or
-                                               gap >= separation(cm, world, a, b, n0) -
-                                               SAT_TOL * (1.0 + abs(gap))):
+        if got is None and face_wins and gap <= margin:
             got = manifold(cm, world, a, b, axis, -gap, margin)
         if got is None:
             out.append((pair[rows], point[rows], normal[rows], depth[rows]))

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vrsim_cli.maths.products import matmul, norm
+from vrsim_cli.maths.products import matmul
 
 from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
 from vrsim_cli.maths.triangles import box_sdf as _box_sdf
@@ -177,7 +177,7 @@ def _deepest(pair, points, depth, n, margin, keep: int = 4):
                  depth.reshape(-1), margin)
 
 
-FLAT_COS = 1.0 - 5e-5  # a cap within ~0.01 rad of a plane lies flat on it
+FLAT_COS = cylinder_pairs.ALIGN_COS  # a cap within ~0.01 rad of a plane lies flat on it
 
 
 def plane_cylinder(cm, world, ia, ib, margin):
@@ -188,14 +188,11 @@ def plane_cylinder(cm, world, ia, ib, margin):
     tilt's direction, which changes with every wobble, the points went round the rim from
     step to step, and stepped mode's warm start (by rank in the pair) kept a loaded
     cylinder jittering; kept in candidate order, the ranks stay."""
-    out = [_plane_cylinder(cm, world, ia, ib, margin)]
-    n = cm.geom_plane_normal[ia]
-    along = _dot(n, world.rot[ib][:, :, 1])
-    flat = np.flatnonzero(np.abs(along) >= FLAT_COS)
-    if len(flat):
-        keep = ~np.isin(out[0][0], flat)
-        out[0] = tuple(x[keep] for x in out[0])
-        out.append(_flat_cap(cm, world, ia, ib, flat, margin))
+    flat = np.abs(_dot(cm.geom_plane_normal[ia], world.rot[ib][:, :, 1])) >= FLAT_COS
+    tilted = np.flatnonzero(~flat)
+    pair, point, normal, depth = _plane_cylinder(cm, world, ia[tilted], ib[tilted], margin)
+    out = [(tilted[pair], point, normal, depth),
+           _flat_cap(cm, world, ia, ib, np.flatnonzero(flat), margin)]
     pair, point, normal, depth = (np.concatenate(x) for x in zip(*out))
     order = np.argsort(pair, kind="stable")
     return pair[order], point[order], normal[order], depth[order]
@@ -223,6 +220,7 @@ def _flat_cap(cm, world, ia, ib, rows, margin):
 
 
 def _plane_cylinder(cm, world, ia, ib, margin):
+    """plane_cylinder's contacts of pairs whose caps do not lie flat."""
     n = cm.geom_plane_normal[ia]
     axis = world.rot[ib][:, :, 1]
     h, r = world.half[ib][:, 1], cm.geom_radius[ib]

@@ -1104,9 +1104,10 @@ def _rounds(A, pre, target, mu, active, slide, s, tol_v):
             # sticking everywhere has no solution (the supports move apart: a box on two
             # boxes that slide differently); the least-squares answer slips at the points
             # that cannot stick, which then slide the way they slip
-            for i in np.flatnonzero(_worst(torn, -slip)).tolist():
+            worst = _worst(torn, -slip)
+            for i in np.flatnonzero(worst).tolist():
                 s[i] = v[i, 1:] / slip[i]
-            slide |= _worst(torn, -slip)
+            slide |= worst
             if (active.tobytes(), slide.tobytes()) in seen:
                 break
             seen.add(key)
