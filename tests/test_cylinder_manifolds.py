@@ -214,13 +214,11 @@ def stack_draw(seed: int):
     return _scene(bodies, dt, integrator, mode, mu), (kind, mode, dt, integrator, r, h)
 
 
-# Stepped mode holds box stacks of the same draws to ~5.7e-6 m (its sequential impulses
-# and position pass, docs/collision-response.md); with a cylinder in the pair these draws
-# settle up to 2.9e-5 m away and leave up to 5.5e-6 m/s, 2.8e-5 rad/s after 1 s
-# (measured 2026-12-04; docs/collision.md, Known limits): the strict truth fails there
-# (strict xfails); the envelope below, about 2-4 x those, holds, and every draw broke it
-# on fcl's single point (up to 1 cm, 0.67 rad/s).
-KNOWN_STEPPED = {8, 9, 10, 18, 19, 20, 21, 22}
+# Stepped mode's envelope of the 30f01eb round (the stacks' settling then: up to 2.9e-5 m,
+# 5.5e-6 m/s, 2.8e-5 rad/s after 1 s; every draw broke it on fcl's single point, up to 1
+# cm and 0.67 rad/s). Since the shock levels are solved at once (kernels.stepped.
+# _shock_direct) every draw also holds the strict 1e-9 truth above; the 8 stepped draws
+# of KNOWN_STEPPED failed it on ef508f0 (strict xfails then).
 STEPPED_MOVE, STEPPED_SPEED, STEPPED_TURN = 6e-5, 2e-5, 1e-4  # m, m/s, rad/s after 1 s
 
 
@@ -233,10 +231,7 @@ def _stack_run(seed):
     return model, final, case
 
 
-@pytest.mark.parametrize("seed", [
-    pytest.param(k, marks=pytest.mark.xfail(strict=True, reason=(
-        "stepped mode: a cylinder pair settles up to 2.9e-5 m away (KNOWN_STEPPED)")))
-    if k in KNOWN_STEPPED else k for k in range(24)])
+@pytest.mark.parametrize("seed", range(24))
 def test_resting_cylinder_stacks_stay_at_rest(seed):
     model, final, case = _stack_run(seed)
     moved = np.abs(final.body_pos - model.body_pos0).max()

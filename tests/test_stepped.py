@@ -572,7 +572,7 @@ def test_solves_that_stop_at_a_fixed_point_give_the_bits_of_the_full_count(steps
             ks.contact_levels(K, k, inv_m, tol, level)
             order, m = ks.level_order(K, k, level, True)
             DP, DL = np.zeros((n, 3)), np.zeros((n, 3))
-            ks.shock(K, order, m, level, dt, iterations, U, Wv, DP, DL, fixed)
+            ks.shock(K, order, m, level, dt, iterations, U, Wv, DP, DL, fixed, IW)
             S1, RS1 = S.copy(), RS.copy()
             ks.end_separations(mf, K, k, S, RS, S1, RS1)
             everything, _ = ks.level_order(K, k, level, False)
