@@ -1923,13 +1923,28 @@ def moved(mf, b, r, S, RS, S1, RS1):
     return d
 
 
+POS_ROUNDOFF = 1e-12  # of a contact's arms: a penetration this shallow is round-off of
+# the step's position update and of the contact geometry (a resting 10-box stack ended
+# its steps 1e-16 m deep and the pass swept 14 times a step to push that out)
+
+
+@kernel(inline="always")
+def _pos_roundoff(K, i):
+    """m: POS_ROUNDOFF of contact i's longer arm (largest component)."""
+    arm = 0.0
+    for c in range(3):
+        arm = max(arm, abs(K[i, K_RA + c]), abs(K[i, K_RB + c]))
+    return POS_ROUNDOFF * arm
+
+
 @kernel
 def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, dth,
              until_fixed):
     """The position pass: pseudo-impulses Q >= 0 along the normals (Gauss-Seidel on the
     linearised separations, the contacts ground up in `order` (k,), and with shock
     propagation: a contact between two `level`s moves its upper body only) until every
-    contact that ends deeper than `slop` is back at -slop; then the bodies are moved by dx and turned by exp(dth), their angular momentum
+    contact that ends deeper than `slop` (and than round-off, POS_ROUNDOFF) is back at
+    -slop; then the bodies are moved by dx and turned by exp(dth), their angular momentum
     turned with them (body-frame L kept, so the kinetic energy is unchanged), and no
     velocity changes. dx, dth (n, 3): scratch. `until_fixed`: stop after a sweep that
     moved nothing (later sweeps would repeat it exactly)."""
@@ -1942,7 +1957,8 @@ def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, d
     for i in range(k):
         K[i, K_Q] = 0.0
         mode = int(K[i, K_MODE])
-        if (mode == IMPULSE or mode == SLIDE) and K[i, K_SEND] < -slop:
+        deep = K[i, K_SEND] < -slop - _pos_roundoff(K, i)
+        if (mode == IMPULSE or mode == SLIDE) and deep:
             any_deep = True
     if not any_deep:
         return
@@ -1968,6 +1984,8 @@ def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, d
                     imb = 0.0
                 mass = _upper_mass(K, i, 0, upper_b, imb if upper_b else ima)
                 inv_k = 1.0 / mass if mass > 0.0 else 0.0
+            if K[i, K_Q] == 0.0 and sep + slop >= -_pos_roundoff(K, i):
+                continue  # deep by round-off only: not pushed
             new = max(K[i, K_Q] - (sep + slop) * inv_k, 0.0)
             q = new - K[i, K_Q]
             if q == 0.0:
