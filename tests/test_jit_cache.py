@@ -202,3 +202,53 @@ def test_kernels_are_cached_in_vrsims_folder_when_numba_was_imported_first(tmp_p
     assert not list(tmp_path.glob("__pycache__/*.nbi")), "cached beside the source"
     saved = list((tmp_path / "base").glob(f"src-{jit._source_digest()}/**/firstmod.twice-*.nbi"))
     assert len(saved) == 1, sorted(str(p) for p in (tmp_path / "base").rglob("*"))
+
+
+NAMER = """
+import os, sys
+import racemod
+fork = sys.argv[1] == "fork"
+
+def name_of(k):
+    f = racemod.make(k)
+    f(0.0)
+    return next(iter(f.overloads.values())).fndesc.mangled_name
+
+if fork:  # two children of one parent: they inherit its state, as a sweep's workers
+    for k in (1, 2):
+        r, w = os.pipe()
+        if os.fork() == 0:
+            os.write(w, name_of(k).encode())
+            os._exit(0)
+        os.close(w)
+        os.wait()
+        print(os.read(r, 4096).decode())
+else:
+    print(name_of(int(sys.argv[2])))
+"""
+
+
+@pytest.mark.skipif(jit.JIT_DISABLED, reason="no compiled code to name with the JIT off")
+@pytest.mark.parametrize("how", ["spawn", "fork"])
+def test_processes_never_give_two_variants_one_symbol(tmp_path, how):
+    """Two processes that compile different variants of one closure kernel (the stepped
+    step per integrator: the compile helper per integrator, a sweep's forked workers)
+    name their machine code apart. numba counted from 1 in each process, so both
+    variants got the same symbol, and a process that loaded both from the cache ran the
+    first one for both (numba/numba#10486): a CI run computed rk4 and verlet bounces with
+    symplectic-euler's step. The hash seed is fixed so that nothing else varies."""
+    if how == "fork" and not hasattr(os, "fork"):
+        pytest.skip("no fork on this platform")
+    (tmp_path / "racemod.py").write_text(MODULE)
+    env = {**os.environ, "PYTHONHASHSEED": "0",
+           "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    env.pop("NUMBA_CACHE_DIR", None)
+    names = []
+    runs = [["fork"]] if how == "fork" else [["spawn", "1"], ["spawn", "2"]]
+    for i, args in enumerate(runs):
+        env["VRSIM_CACHE_DIR"] = str(tmp_path / f"cache{i}")  # each compiles afresh
+        proc = subprocess.run([sys.executable, "-c", NAMER, *args], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        names += proc.stdout.split()
+    assert len(names) == 2 and names[0] != names[1], names

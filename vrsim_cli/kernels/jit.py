@@ -214,6 +214,29 @@ class _CompileWatch(event.Listener):
 _WATCH = _CompileWatch()
 event.register("numba:compile", _WATCH)
 
+
+class _UnrepeatedIds:
+    """numba names a compiled function `qualname$<uid>` (its machine symbol), the uid
+    from a counter that starts at 1 in every process. Two processes that compile the
+    same steps (the compile helper run per integrator, a sweep's forked workers, which
+    inherit the counter) give different variants of one closure kernel (the stepped
+    step of symplectic-euler and of rk4) the same symbol; a later process that loads
+    both from the cache binds calls to the first one loaded (numba/numba#10486). A CI
+    run computed rk4 and verlet scenes with symplectic-euler's step that way (box
+    rebounds exactly symplectic-euler's). Drawn at random, a uid is never repeated:
+    the code is the same, only its name differs, and cache keys do not use it."""
+
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> int:
+        return int.from_bytes(os.urandom(8), "little") | 1 << 64  # never a small count
+
+
+from numba.core import bytecode as _bytecode  # noqa: E402
+
+_bytecode.FunctionIdentity._unique_ids = _UnrepeatedIds()
+
 JIT_DISABLED = bool(numba.config.DISABLE_JIT)
 
 
