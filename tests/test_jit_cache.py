@@ -54,6 +54,15 @@ import racemod
 print(racemod.make(k)(0.0))
 """
 
+def child_env(tmp_path, cache) -> dict:
+    """This environment for a child Python that imports modules written to tmp_path and
+    caches kernels in `cache` (numba's own variable unset: jit takes ours)."""
+    env = {**os.environ, "VRSIM_CACHE_DIR": str(cache),
+           "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    env.pop("NUMBA_CACHE_DIR", None)
+    return env
+
+
 READER = """
 import racemod
 from vrsim_cli.kernels import jit
@@ -66,9 +75,7 @@ print(out, jit.compile_report())
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="the save lock is POSIX (fcntl)")
 def test_concurrent_saves_of_two_variants_keep_each_variants_code(tmp_path):
     (tmp_path / "racemod.py").write_text(MODULE)
-    env = {**os.environ, "VRSIM_CACHE_DIR": str(tmp_path / "cache"),
-           "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
-    env.pop("NUMBA_CACHE_DIR", None)
+    env = child_env(tmp_path, tmp_path / "cache")
     racers = [subprocess.Popen([sys.executable, "-c", textwrap.dedent(RACER), str(k)],
                                cwd=tmp_path, env=env, stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True) for k in (1, 2)]
@@ -136,9 +143,7 @@ def test_kernels_load_from_the_cache_without_initialising_numbas_compiler(tmp_pa
     allocating kernel without that (before: numba.np.linalg was imported by every warm
     run); a compiling one initialises it, with BLAS blocked (scipy.linalg not imported)."""
     (tmp_path / "loadmod.py").write_text(ALLOCATING)
-    env = {**os.environ, "VRSIM_CACHE_DIR": str(tmp_path / "cache"),
-           "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
-    env.pop("NUMBA_CACHE_DIR", None)
+    env = child_env(tmp_path, tmp_path / "cache")
     runs = [subprocess.run([sys.executable, "-c", PROBE], cwd=tmp_path, env=env,
                            capture_output=True, text=True, timeout=300) for _ in range(2)]
     for proc in runs:
@@ -240,13 +245,11 @@ def test_processes_never_give_two_variants_one_symbol(tmp_path, how):
     if how == "fork" and not hasattr(os, "fork"):
         pytest.skip("no fork on this platform")
     (tmp_path / "racemod.py").write_text(MODULE)
-    env = {**os.environ, "PYTHONHASHSEED": "0",
-           "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
-    env.pop("NUMBA_CACHE_DIR", None)
     names = []
     runs = [["fork"]] if how == "fork" else [["spawn", "1"], ["spawn", "2"]]
     for i, args in enumerate(runs):
-        env["VRSIM_CACHE_DIR"] = str(tmp_path / f"cache{i}")  # each compiles afresh
+        env = child_env(tmp_path, tmp_path / f"cache{i}")  # each compiles afresh
+        env["PYTHONHASHSEED"] = "0"
         proc = subprocess.run([sys.executable, "-c", NAMER, *args], cwd=tmp_path, env=env,
                               capture_output=True, text=True, timeout=300)
         assert proc.returncode == 0, proc.stderr[-2000:]

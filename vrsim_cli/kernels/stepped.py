@@ -1803,7 +1803,7 @@ def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL, until_fixed, IW):
     head = np.full(n, -1, np.int64)
     tail = np.full(n, -1, np.int64)
     solved = np.zeros(n, np.bool_)
-    faces = np.zeros(n, np.bool_)
+    rests = np.zeros(n, np.bool_)  # on a face, every contact loaded: FACE_SWEEPS
     nxt = np.empty(max(m, 1), np.int64)
     cont = np.empty(max(m, 1), np.int64)
     act = np.empty(max(m, 1), np.bool_)
@@ -1871,7 +1871,7 @@ def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL, until_fixed, IW):
                                   rows, dirs, J, bb, G, x, y, False)
             # FACE_SWEEPS only for a body that rests on all its contacts: one still landing
             # or tumbling (a pile) gains nothing exact from them, and they cost 4x
-            faces[u] = levers and loaded
+            rests[u] = levers and loaded
         for q in range(q0, q1):  # the bodies left: each one's contacts swept on its own
             i = order[q]
             a, b = int(K[i, K_A]), int(K[i, K_B])
@@ -1879,7 +1879,7 @@ def shock(K, order, m, level, dt, iterations, U, Wv, DP, DL, until_fixed, IW):
             u = b if upper_b else a
             if head[u] != q or solved[u]:
                 continue
-            for _ in range(FACE_SWEEPS * iterations if faces[u] else iterations):
+            for _ in range(FACE_SWEEPS * iterations if rests[u] else iterations):
                 moved = False
                 p = q
                 while p >= 0:
