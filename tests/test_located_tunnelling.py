@@ -55,7 +55,7 @@ import pytest
 
 from conftest import simulate
 from test_stepped import (SPACING, WALL_HALF_SIDE, WALL_HALF_THICKNESS, _rot, _unit_quat,
-                          random_shape)
+                          dot, matvec, norm, random_shape)
 
 DT = 0.01
 TOLERANCE = 1e-3  # m, collision.tolerance (default)
@@ -84,11 +84,11 @@ def contact_arm(kind, size, R, n) -> np.ndarray:
     if kind == "sphere":
         return -size[0] * n
     if kind == "box":
-        corners = [R @ (0.5 * np.array(size) * s) for s in
+        corners = [matvec(R, 0.5 * np.array(size) * s) for s in
                    np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3)]
-        return min(corners, key=lambda c: float(n @ c))
-    ends = [R @ np.array([0.0, 0.5 * size[1] * s, 0.0]) for s in (-1.0, 1.0)]
-    return min(ends, key=lambda e: float(n @ e)) - size[0] * n
+        return min(corners, key=lambda c: dot(n, c))
+    ends = [matvec(R, np.array([0.0, 0.5 * size[1] * s, 0.0])) for s in (-1.0, 1.0)]
+    return min(ends, key=lambda e: dot(n, e)) - size[0] * n
 
 
 def second_point_gap(kind, size, R, n) -> float:
@@ -98,10 +98,10 @@ def second_point_gap(kind, size, R, n) -> float:
     if kind == "sphere":
         return np.inf
     if kind == "box":
-        heights = sorted(float(n @ (R @ (0.5 * np.array(size) * s))) for s in
+        heights = sorted(dot(n, matvec(R, 0.5 * np.array(size) * s)) for s in
                          np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3))
         return heights[1] - heights[0]
-    return abs(float(n @ (R @ np.array([0.0, size[1], 0.0]))))
+    return abs(dot(n, matvec(R, np.array([0.0, size[1], 0.0]))))
 
 
 def effective_inverse_mass(inv_m, inv_I_world, r, n) -> float:
@@ -145,13 +145,13 @@ def impact_cases(kind, eps, count, seed, plates):
                 break
         speed = float(np.exp(rng.uniform(np.log(10.0), np.log(1000.0))))
         tangent = np.cross(n, rng.normal(size=3))
-        tangent /= np.linalg.norm(tangent)
+        tangent /= norm(tangent)
         rel = -speed * n + rng.uniform(0.0, 0.1) * speed * tangent
         vel = plate_vel + rel
         when = (int(rng.integers(0, 3)) + float(rng.uniform(0.01, 0.99))) * DT
         arm = contact_arm(kind, size, R, n)
         lateral = np.cross(n, rng.normal(size=3))
-        lateral *= rng.uniform(0.0, reach) / np.linalg.norm(lateral)
+        lateral *= rng.uniform(0.0, reach) / norm(lateral)
         plate_then = centre + plate_vel * when
         touch = plate_then + lateral + WALL_HALF_THICKNESS * n  # on the face at `when`
         pos = touch - arm - vel * when

@@ -23,6 +23,29 @@ WALL_HALF_SIDE = 5.0  # m
 SPACING = 200.0  # m between cases in one scene (a case's bodies move < 50 m)
 
 
+# Scenes are built with BLAS-free arithmetic (products and sums in a fixed order):
+# numpy's `@` and `np.linalg.norm` go through BLAS, whose kernels round differently on
+# different CPUs (OPENBLAS_CORETYPE=Prescott moved a bullet's position by an ulp), and a
+# test must pose the same scene on every machine.
+
+
+def dot(a, b) -> float:
+    """sum_i a_i b_i, left to right in Python floats."""
+    total = 0.0
+    for x, y in zip(a, b):
+        total += float(x) * float(y)
+    return total
+
+
+def norm(v) -> float:
+    return float(np.sqrt(dot(v, v)))
+
+
+def matvec(R, v) -> np.ndarray:
+    """R v (3,) for a 3x3 R, row by row with `dot`."""
+    return np.array([dot(row, v) for row in R])
+
+
 def _rot(q):
     w, x, y, z = q
     return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -45,16 +68,16 @@ def random_shape(rng, kind: str) -> tuple[list, str]:
 
 def _unit_quat(rng):
     q = rng.normal(size=4)
-    return q / np.linalg.norm(q)
+    return q / norm(q)
 
 
 def _support(kind, size, R, d):
     """How far body of `kind` reaches from its centre along the unit world direction d."""
-    local = R.T @ d
+    local = matvec(R.T, d)
     if kind == "sphere":
         return size[0]
     if kind == "box":
-        return float(np.abs(local) @ (0.5 * np.asarray(size)))
+        return dot(np.abs(local), 0.5 * np.asarray(size))
     return size[0] + 0.5 * size[1] * abs(local[1])  # capsule: radius, length along y
 
 
@@ -85,12 +108,12 @@ def bullet_cases(kind, eps, count, seed):
         qb = _unit_quat(rng)
         speed = float(np.exp(rng.uniform(np.log(10.0), np.log(1000.0))))
         tangent = np.cross(normal, rng.normal(size=3))
-        tangent /= np.linalg.norm(tangent)
+        tangent /= norm(tangent)
         vel = -speed * normal + rng.uniform(0.0, 0.1) * speed * tangent
         when = (int(rng.integers(0, 3)) + float(rng.uniform(0.01, 0.99))) * dt
         reach = _support(kind, size, _rot(qb), -normal)
         lateral = np.cross(normal, rng.normal(size=3))
-        lateral *= rng.uniform(0.0, 1.0) / np.linalg.norm(lateral)
+        lateral *= rng.uniform(0.0, 1.0) / norm(lateral)
         # the body's nearest point touches the wall's face at t = when
         pos = centre + lateral + normal * (WALL_HALF_THICKNESS + reach + speed * when) - \
             (vel + speed * normal) * when
@@ -267,10 +290,10 @@ def test_oblique_sphere_impacts_match_the_numpy_reference_solver():
         r1, r2 = rng.uniform(0.05, 0.3, 2).tolist()
         eps, mu = float(rng.choice([0.5, 1.0])), 0.0
         n = rng.normal(size=3)
-        n /= np.linalg.norm(n)
+        n /= norm(n)
         v1, v2 = rng.normal(size=3), rng.normal(size=3)
-        v1 += (2.0 + abs(n @ (v2 - v1))) * n  # approaching along n at >= 2 m/s
-        gap = float(rng.uniform(0.05, 0.9)) * float(n @ (v1 - v2)) * dt
+        v1 += (2.0 + abs(dot(n, v2 - v1))) * n  # approaching along n at >= 2 m/s
+        gap = float(rng.uniform(0.05, 0.9)) * dot(n, v1 - v2) * dt
         x1 = np.array([100.0 * c, 0.0, 0.0])
         x2 = x1 + (r1 + r2 + gap) * n
         for name, m, r, x, v in (("a", m1, r1, x1, v1), ("b", m2, r2, x2, v2)):
@@ -285,7 +308,7 @@ def test_oblique_sphere_impacts_match_the_numpy_reference_solver():
         bodies = Bodies(np.array([1 / m1, 1 / m2]),
                         np.array([np.eye(3) / I1, np.eye(3) / I2]),
                         np.array([v1, v2]), np.zeros((2, 3)), np.array([x1, x2]))
-        point = x1 + (r1 + 0.5 * (np.linalg.norm(x2 - x1) - r1 - r2)) * n
+        point = x1 + (r1 + 0.5 * (norm(x2 - x1) - r1 - r2)) * n
         system = jacobi.System(bodies, np.array([0]), np.array([1]), point[None],
                                n[None], np.array([0.0]))
         jacobi.solve(bodies, system, np.array([eps]), np.array([mu]), dt, 0.0, 1)
@@ -403,7 +426,7 @@ def _random_scene(rng, bodies=60, planes=4, speed=3.0):
              "collision: {impacts: stepped}\nbodies:"]
     for p in range(planes):
         n = rng.normal(size=3)
-        n /= np.linalg.norm(n)
+        n /= norm(n)
         lines.append(f"  - {{name: p{p}, type: static, position: "
                      f"{(-0.4 * n).tolist()!r}, shape: {{type: plane, normal: {n.tolist()!r}}}}}")
     for b in range(bodies):
