@@ -132,6 +132,8 @@ def independent_bound(model, e0: float, e: float, tau: float) -> float:
     if p == 5:
         steps = max(omega * tau * model.rigid.tolerance ** -0.2, tau / model.dt)
         rel = SAFETY * model.rigid.tolerance * (1.0 + steps)
+    elif omega * model.dt >= 1.0:  # capped: SAFETY (w dt)^p >= 10 > CAP, and (w dt)^p
+        rel = CAP  # of a blown-up run overflows (rk4 at w dt = 3: 4.9e187 J in 4 steps)
     else:
         rel = SAFETY * (omega * model.dt) ** p * (1.0 + omega * tau)
     return min(CAP, max(FLOOR, rel)) * max(e, e0)
