@@ -134,3 +134,75 @@ def test_every_scenario_is_bit_identical_whatever_the_cpu_code(variant, referenc
     differ = {os.path.basename(k): (reference[k], found[k]) for k in scenes
               if found[k] != reference[k]}
     assert not differ, f"{variant} changes the result of {differ}"
+
+
+# Off the simulation path: the camera places rendered frames (PNG pixels, not the state);
+# the numpy orthonormalize is the tests' reference (the kernels have their own,
+# kernels/linalg.py); a mesh's flatness check answers yes or no about an input file.
+NOT_SIMULATION = {"vrsim_cli/maths/camera.py", "vrsim_cli/maths/rotation.py:orthonormalize",
+                  "vrsim_cli/maths/meshes.py:solid_problem"}
+BLAS_CALLS = {"dot", "matmul", "inner", "vdot", "tensordot"}
+LAPACK_CALLS = {"inv", "solve", "pinv", "lstsq", "eig", "eigh", "eigvals", "eigvalsh",
+                "det", "svd", "qr", "cholesky"}
+
+
+def _blas_uses(path):
+    """Lines of `path` with a product that goes through BLAS or LAPACK: `a @ b`,
+    np.dot/matmul/..., np.linalg's solvers, and np.linalg.norm of a whole array (a dot
+    product; with `axis` numpy sums itself)."""
+    import ast
+    found = []
+    tree = ast.parse(path.read_text("utf-8"))
+    exempt = set()
+    for fn in ast.walk(tree):
+        if isinstance(fn, ast.FunctionDef) and f"{rel_of(path)}:{fn.name}" in NOT_SIMULATION:
+            exempt |= {id(n) for n in ast.walk(fn)}
+    for node in ast.walk(tree):
+        if id(node) in exempt:
+            continue
+        elif isinstance(node, ast.BinOp) and isinstance(node.op, ast.MatMult):
+            found.append(node.lineno)
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
+            name, owner = node.func.attr, ast.unparse(node.func.value)
+            if owner in ("np", "numpy") and name in BLAS_CALLS or \
+                    owner in ("np.linalg", "numpy.linalg") and name in LAPACK_CALLS or \
+                    owner in ("np.linalg", "numpy.linalg") and name == "norm" and \
+                    not any(k.arg == "axis" for k in node.keywords):
+                found.append(node.lineno)
+    return found
+
+
+def rel_of(path) -> str:
+    from conftest import REPO
+    try:
+        return path.resolve().relative_to(REPO).as_posix()
+    except ValueError:
+        return path.name
+
+
+def test_the_simulation_path_has_no_blas_products():
+    """No product on the simulation path goes through BLAS or LAPACK, whose kernels round
+    by CPU (maths/products.py says why). The scenario runs above catch what they reach;
+    this catches the paths they do not (a cylinder pair's manifold used `@` and made the
+    coins scenario differ under every OPENBLAS_CORETYPE; the located solver's work
+    checks and fcl's touching probe did too)."""
+    from conftest import REPO
+    package = REPO / "vrsim_cli"
+    files = [p for sub in ("stages", "model", "maths", "kernels")
+             for p in sorted((package / sub).rglob("*.py"))] + [package / "loop.py"]
+    offenders = {}
+    for path in files:
+        rel = path.relative_to(REPO).as_posix()
+        if rel in NOT_SIMULATION:
+            continue
+        lines = _blas_uses(path)
+        if lines:
+            offenders[rel] = lines
+    assert not offenders, offenders
+
+
+def test_the_blas_scan_finds_what_it_looks_for(tmp_path):
+    bad = tmp_path / "bad.py"
+    bad.write_text("import numpy as np\nx = a @ b\ny = np.dot(a, b)\nz = np.linalg.norm(v)\n"
+                   "w = np.linalg.norm(v, axis=1)\nq = np.linalg.solve(A, b)\n")
+    assert _blas_uses(bad) == [2, 3, 4, 6]

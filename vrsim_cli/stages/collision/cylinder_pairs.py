@@ -41,6 +41,7 @@ import math
 
 import numpy as np
 
+from vrsim_cli.maths.products import dot, matmul
 from vrsim_cli.model.collision import BOX, CYLINDER
 from vrsim_cli.stages.collision import fcl_adapter
 from vrsim_cli.stages.collision.contacts import no_pair_contacts, reduce_manifold
@@ -103,8 +104,8 @@ def _extent(cm, world, g, d):
     """Half the extent (m) of geom g (box or cylinder) along unit direction d."""
     R = world.rot[g]
     if cm.geom_type[g] == BOX:
-        return float(np.abs(R.T @ d) @ world.half[g])
-    along = abs(float(R[:, 1] @ d))
+        return dot(np.abs(matmul(R.T, d)), world.half[g])
+    along = abs(dot(R[:, 1], d))
     return world.half[g][1] * along + cm.geom_radius[g] * math.sqrt(max(0.0, 1.0 - along * along))
 
 
@@ -113,7 +114,7 @@ def separation(cm, world, a, b, d):
     (from a to b): the gap between their projections, exact for boxes and cylinders. No
     direction separates them more than the contact normal does (the separating-axis
     theorem for convex shapes)."""
-    return float((world.pos[b] - world.pos[a]) @ d) - _extent(cm, world, a, d) - \
+    return dot(world.pos[b] - world.pos[a], d) - _extent(cm, world, a, d) - \
         _extent(cm, world, b, d)
 
 
@@ -128,12 +129,12 @@ def face_axis(cm, world, a, b):
         R = world.rot[g]
         axes = (R[:, 0], R[:, 1], R[:, 2]) if cm.geom_type[g] == BOX else (R[:, 1],)
         for axis in axes:
-            d = axis if float(axis @ centre) >= 0.0 else -axis
+            d = axis if dot(axis, centre) >= 0.0 else -axis
             gap = separation(cm, world, a, b, d)
             # of two axes within ALIGN_COS of each other, the first (a's): two nearly
             # parallel caps swapped the normal with every wobble, and stepped mode's warm
             # start, by rank, left a cylinder on a cylinder jittering
-            if best is not None and abs(float(d @ best)) >= ALIGN_COS:
+            if best is not None and abs(dot(d, best)) >= ALIGN_COS:
                 continue
             if best is None or gap > best_gap + SAT_TOL * (1.0 + abs(best_gap)):
                 best, best_gap = d, gap
@@ -149,7 +150,7 @@ def _face(cm, world, g, d):
     cylinder whose cap does not face d."""
     c, R = world.pos[g], world.rot[g]
     if cm.geom_type[g] == BOX:
-        local = R.T @ d
+        local = matmul(R.T, d)
         k = int(np.argmax(np.abs(local)))
         s = 1.0 if local[k] >= 0.0 else -1.0
         nf = s * R[:, k]
@@ -160,7 +161,7 @@ def _face(cm, world, g, d):
         signs = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
         return nf, np.array([centre + a * hu * u + b * hv * v for a, b in signs]), abs(local[k])
     axis = R[:, 1]
-    along = float(axis @ d)
+    along = dot(axis, d)
     if abs(along) < CAP_COS:
         return None
     nf = axis if along >= 0.0 else -axis
@@ -172,8 +173,8 @@ def _radial(R, d):
     """The unit direction of d across the cylinder's axis (its local x when d lies
     along the axis)."""
     axis = R[:, 1]
-    radial = d - (axis @ d) * axis
-    length = math.sqrt(radial @ radial)
+    radial = d - dot(axis, d) * axis
+    length = math.sqrt(dot(radial, radial))
     return radial / length if length > 1e-9 else R[:, 0]
 
 
@@ -213,7 +214,7 @@ def _clip(points, closed, planes):
     for s, o in planes:
         if not pts:
             break
-        dist = [float(s @ p) - o for p in pts]
+        dist = [dot(s, p) - o for p in pts]
         if not closed:  # a segment: keep its inner part
             (p, q), (dp, dq) = pts, dist
             if dp > 0.0 and dq > 0.0:
@@ -243,13 +244,13 @@ def _side_planes(verts, nf):
     for i in range(len(verts)):
         e = verts[(i + 1) % len(verts)] - verts[i]
         s = np.cross(e, nf)
-        length = math.sqrt(s @ s)
+        length = math.sqrt(dot(s, s))
         if not length > 0.0:
             continue
         s = s / length
-        if s @ (centre - verts[i]) > 0.0:
+        if dot(s, centre - verts[i]) > 0.0:
             s = -s
-        planes.append((s, float(s @ verts[i])))
+        planes.append((s, dot(s, verts[i])))
     return planes
 
 
@@ -278,21 +279,21 @@ def manifold(cm, world, a, b, n0, depth0, margin):
     planes = _side_planes(verts, nf)
     lowest = []
     if cm.geom_type[inc] == CYLINDER and closed and \
-            abs(float(world.rot[inc][:, 1] @ nf)) >= ALIGN_COS:
+            abs(dot(world.rot[inc][:, 1], nf)) >= ALIGN_COS:
         # a cap lying nearly flat on the reference face: its rim polygon fixed in its
         # body too, and its lowest rim point (pts[0]) besides, which the polygon misses
         # by up to r (1 - cos(pi / 8)) sin(tilt)
         R = world.rot[inc]
-        if all(float(s @ pts[0]) <= o for s, o in planes):
+        if all(dot(s, pts[0]) <= o for s, o in planes):
             lowest = [pts[0]]
-        cap = R[:, 1] if float(R[:, 1] @ nf) <= 0.0 else -R[:, 1]  # its outward normal
+        cap = R[:, 1] if dot(R[:, 1], nf) <= 0.0 else -R[:, 1]  # its outward normal
         pts = _rim(pts.mean(axis=0), cap, R, R[:, 1], cm.geom_radius[inc])
         keep = len(_RIM) + 1
     clipped = _clip(pts, closed, planes)
     if not clipped and not lowest:
         return None
     q = np.array(clipped + lowest)
-    depth = float(nf @ verts[0]) - q @ nf  # how far below the reference plane
+    depth = dot(nf, verts[0]) - matmul(q, nf)  # how far below the reference plane
     return _finish(q, depth, nf, sign, depth0, margin, keep)
 
 
@@ -319,22 +320,22 @@ def _parallel_sides(cm, world, a, b, n0, depth0, margin):
     if not (cm.geom_type[a] == CYLINDER and cm.geom_type[b] == CYLINDER):
         return None
     Ra, Rb = world.rot[a], world.rot[b]
-    if abs(float(Ra[:, 1] @ Rb[:, 1])) < PARALLEL_COS:
+    if abs(dot(Ra[:, 1], Rb[:, 1])) < PARALLEL_COS:
         return None
     axis = Ra[:, 1]
     across = world.pos[b] - world.pos[a]
-    across = across - (across @ axis) * axis
-    length = math.sqrt(across @ across)
-    if not length > 0.0 or abs(float(n0 @ across)) < ALIGN_COS * length:
+    across = across - dot(across, axis) * axis
+    length = math.sqrt(dot(across, across))
+    if not length > 0.0 or abs(dot(n0, across)) < ALIGN_COS * length:
         return None
     nf = across / length  # from a's axis to b's, exactly across both
     seg, _ = _incident(cm, world, b, -nf)
     top = world.pos[a] + cm.geom_radius[a] * nf  # a's side line along nf
     ha = world.half[a][1]
-    planes = [(axis, float(axis @ (top + ha * axis))), (-axis, float(-axis @ (top - ha * axis)))]
+    planes = [(axis, dot(axis, top + ha * axis)), (-axis, dot(-axis, top - ha * axis))]
     clipped = _clip(seg, False, planes)
     if not clipped:
         return None
     q = np.array(clipped)
-    depth = float(nf @ top) - q @ nf
+    depth = dot(nf, top) - matmul(q, nf)
     return _finish(q, depth, nf, 1.0, depth0, margin)

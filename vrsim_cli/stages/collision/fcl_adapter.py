@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vrsim_cli.maths.products import matmul, norm
+from vrsim_cli.maths.products import dot, matmul, norm
 
 from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER, MESH, PLANE, SPHERE
 from vrsim_cli.stages.collision.contacts import no_pair_contacts
@@ -176,10 +176,10 @@ def _touching(cm, world, a: int, b: int, oa, gap: float):
             deepest = max(result.contacts, key=lambda c: c.penetration_depth)
             n = np.asarray(deepest.normal, float)
             length = norm(n)
-            if not length > 0.0 or n @ u < 0.5 * length:
+            if not length > 0.0 or dot(n, u) < 0.5 * length:
                 continue
             n = n / length
-            along = step * float(n @ u)
+            along = step * dot(n, u)
             return (np.asarray(deepest.pos, float) + 0.5 * step * u, n,
                     float(deepest.penetration_depth) - along)
     return None

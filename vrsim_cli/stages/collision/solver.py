@@ -384,7 +384,7 @@ def _impact_round(bodies: Bodies, c: ContactSet, target, stick=True) -> np.ndarr
             # dissipates most, alpha = -lt.vt / lt.W lt in [0, 1), where the change is
             # -(lt.vt)^2 / (2 lt.W lt) < 0 (no friction if lt.vt >= 0).
             flat = lt.ravel()
-            work, curv = float(flat @ vt), float(flat @ matmul(W, flat))
+            work, curv = dot(flat, vt), dot(flat, matmul(W, flat))
             if work + 0.5 * curv > 0.0:
                 lt *= min(max(-work / curv, 0.0), 1.0) if curv > 0.0 else 0.0
             _apply_all(bodies, f, lt, [1, 2])
@@ -449,9 +449,9 @@ def _sticking_round(bodies: Bodies, c: ContactSet, vn, target, lam_n):
     # largest s that adds none (continuous in the contacts: a branch to another method
     # there made the outcome jump between nearly equal impacts).
     Wp, Wb = matmul(W, plastic), matmul(W, bounce)
-    a = float(plastic @ (2.0 * v + Wp))
-    b = float(bounce @ (2.0 * v + Wp) + plastic @ Wb)
-    curv = float(bounce @ Wb)
+    a = dot(plastic, 2.0 * v + Wp)
+    b = dot(bounce, 2.0 * v + Wp) + dot(plastic, Wb)
+    curv = dot(bounce, Wb)
     share = 1.0
     if a + b + curv > 0.0:
         if curv > 0.0:
@@ -624,8 +624,8 @@ def _slipping_solve(W, v, goal, normal, rubbing, over, stuck, free, mu, every=Tr
         new_s[moving] = slip[moving] / speed[moving, None]
         turned[moving] = np.abs(new_s[moving] - s[moving]).max(axis=1) > SLIP_TURN
         if not (over.any() or back.any() or turned.any()):
-            work = float(x @ (v + w))  # twice the kinetic energy the impulses add
-            if work > 1e-12 * float(np.abs(x) @ (np.abs(v) + np.abs(w))):
+            work = dot(x, v + w)  # twice the kinetic energy the impulses add
+            if work > 1e-12 * dot(np.abs(x), np.abs(v) + np.abs(w)):
                 return None
             return lam
         s[over] = -lam[over, 1:] / size[over, None]
