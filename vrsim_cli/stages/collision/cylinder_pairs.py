@@ -67,6 +67,66 @@ def cylinder_cylinder(cm, world, ia, ib, margin):
     return _pairs(cm, world, ia, ib, margin)
 
 
+def cylinder_capsule(cm, world, ia, ib, margin):
+    """Cylinder ia against capsule ib. fcl gives one point: a capsule lying on a cap
+    (a pen on a can) then rested on one end of its line of contact, turned about it,
+    and gained energy in every mode (an independent review: 3.7 rad/s after 1 s; up to
+    1.6e3 m/s in stacks). Where fcl's normal is the cap's and the capsule's axis lies in
+    the cap's plane (`_capsule_on_cap`), the two ends of its core segment within the
+    cap's disc are the contacts instead; elsewhere fcl's."""
+    pair, point, normal, depth = fcl_adapter.pair_contacts(cm, world, ia, ib, margin)
+    out = []
+    for p in range(len(ia)):
+        rows = np.flatnonzero(pair == p)
+        got = None
+        if len(rows):
+            deepest = rows[int(np.argmax(depth[rows]))]
+            got = _capsule_on_cap(cm, world, int(ia[p]), int(ib[p]),
+                                  np.asarray(normal[deepest], float), float(depth[deepest]),
+                                  margin)
+        if got is None:
+            out.append((pair[rows], point[rows], normal[rows], depth[rows]))
+        else:
+            pts, n, d = got
+            out.append((np.full(len(d), p), pts, np.repeat(n[None], len(d), axis=0), d))
+    if not out:
+        return no_pair_contacts()
+    return tuple(np.concatenate(x) for x in zip(*out))
+
+
+def _capsule_on_cap(cm, world, a, b, n0, depth0, margin):
+    """Capsule b lying on cylinder a's cap (n0 from a to b within ~0.01 rad of a's axis,
+    b's axis within ~0.01 rad of the cap's plane): its core segment clipped to the cap's
+    disc, each end at its depth below the cap (the capsule's radius under the segment),
+    or None."""
+    axis = world.rot[a][:, 1]
+    along = dot(axis, n0)
+    if abs(along) < ALIGN_COS:
+        return None
+    nf = axis if along > 0.0 else -axis  # the cap's outward normal, towards b
+    u = world.rot[b][:, 1]
+    if abs(dot(u, nf)) > 0.01:
+        return None  # standing or tilted: fcl's point
+    centre = world.pos[a] + world.half[a][1] * nf  # the cap's centre
+    hb, rb, ra = world.half[b][1], float(cm.geom_radius[b]), float(cm.geom_radius[a])
+    p0 = world.pos[b] - hb * u
+    # |radial(p0 + t u)|^2 <= ra^2 on t in [0, 2 hb]: a quadratic in t
+    w0 = p0 - centre
+    w0 = w0 - dot(w0, nf) * nf
+    ut = u - dot(u, nf) * nf
+    qa, qb, qc = dot(ut, ut), 2.0 * dot(w0, ut), dot(w0, w0) - ra * ra
+    disc = qb * qb - 4.0 * qa * qc
+    if not qa > 0.0 or disc <= 0.0:
+        return None
+    root = math.sqrt(disc)
+    lo, hi = max((-qb - root) / (2.0 * qa), 0.0), min((-qb + root) / (2.0 * qa), 2.0 * hb)
+    if not hi > lo:
+        return None
+    ends = np.array([p0 + lo * u, p0 + hi * u]) - rb * nf  # the capsule's underside
+    depth = dot(nf, centre) - matmul(ends, nf)
+    return _finish(ends, depth, nf, 1.0, depth0, margin, keep=2)
+
+
 def _pairs(cm, world, ia, ib, margin):
     pair, point, normal, depth = fcl_adapter.pair_contacts(cm, world, ia, ib, margin)
     out = []

@@ -603,6 +603,7 @@ DISPATCH = {
     (CYLINDER, SPHERE): cylinder_sphere,
     (BOX, CYLINDER): cylinder_pairs.box_cylinder,
     (CYLINDER, CYLINDER): cylinder_pairs.cylinder_cylinder,
+    (CYLINDER, CAPSULE): cylinder_pairs.cylinder_capsule,
     (PLANE, CONVEX): plane_vertices,
     (PLANE, MESH): plane_vertices,
     (MESH, SPHERE): mesh_pairs.mesh_sphere,
