@@ -157,7 +157,8 @@ def test_thinnest_per_shape():
 
 def test_the_default_tolerance_of_thin_bodies():
     """Under 10 mm the default tolerance is a tenth of the thinnest dynamic body (a note
-    says so); a tolerance set in the scene, and scenes of thicker bodies, keep theirs."""
+    says so); a tolerance set in the scene, and scenes of thicker bodies, keep theirs (a
+    set one of half a body's thinness or more with a note)."""
     def model(extra=""):
         text = ("vrsim: 1\nduration: 0.1\nframe_rate: 10\ndt: 0.01\n"
                 f"collision: {{impacts: auto{extra}}}\nbodies:\n"
@@ -169,7 +170,10 @@ def test_the_default_tolerance_of_thin_bodies():
     m = model()
     assert m.collision.tolerance == pytest.approx(3e-5, rel=1e-12)
     assert any("'card'" in n and "tolerance" in n for n in m.notes)
-    m = model(", tolerance: 0.002")
-    assert m.collision.tolerance == 0.002 and not any("tolerance" in n for n in m.notes)
+    m = model(", tolerance: 0.002")  # kept, with a warning: more than half the card
+    assert m.collision.tolerance == 0.002
+    assert any("at least half of body 'card'" in n for n in m.notes)
+    m = model(", tolerance: 0.0001")  # a third of the card: kept, no note
+    assert m.collision.tolerance == 0.0001 and not any("tolerance" in n for n in m.notes)
     r = _auto([_plate("a", 0.05, 0.1), _plate("b", 0.15, 0.1)])
     assert r.rest_speed == pytest.approx((2 * 9.81 * 1e-3) ** 0.5, rel=1e-12)
