@@ -84,11 +84,20 @@ def cylinder_capsule(cm, world, ia, ib, margin):
             got = _capsule_on_cap(cm, world, int(ia[p]), int(ib[p]),
                                   np.asarray(normal[deepest], float), float(depth[deepest]),
                                   margin)
-        if got is None:
-            out.append((pair[rows], point[rows], normal[rows], depth[rows]))
-        else:
-            pts, n, d = got
-            out.append((np.full(len(d), p), pts, np.repeat(n[None], len(d), axis=0), d))
+        out.append(_rows_or(got, p, pair[rows], point[rows], normal[rows], depth[rows]))
+    return _joined(out)
+
+
+def _rows_or(got, p, pair, point, normal, depth):
+    """Pair p's contacts: the manifold `got` (points, normal, depths) if one was made,
+    else fcl's rows."""
+    if got is None:
+        return pair, point, normal, depth
+    pts, n, d = got
+    return np.full(len(d), p), pts, np.repeat(n[None], len(d), axis=0), d
+
+
+def _joined(out):
     if not out:
         return no_pair_contacts()
     return tuple(np.concatenate(x) for x in zip(*out))
@@ -150,14 +159,8 @@ def _pairs(cm, world, ia, ib, margin):
         # the faces' own separating axis decides, as in box_box
         if got is None and face_wins and gap <= margin:
             got = manifold(cm, world, a, b, axis, -gap, margin)
-        if got is None:
-            out.append((pair[rows], point[rows], normal[rows], depth[rows]))
-        else:
-            pts, n, d = got
-            out.append((np.full(len(d), p), pts, np.repeat(n[None], len(d), axis=0), d))
-    if not out:
-        return no_pair_contacts()
-    return tuple(np.concatenate(x) for x in zip(*out))
+        out.append(_rows_or(got, p, pair[rows], point[rows], normal[rows], depth[rows]))
+    return _joined(out)
 
 
 def _extent(cm, world, g, d):
