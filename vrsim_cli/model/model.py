@@ -268,30 +268,29 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
     if data.get("collision") is not None:
         from vrsim_cli.model.collision import compile_collision, mesh_pair_notes
         collision = compile_collision(scene, shapes, dim, problems)  # only scenes that collide
-        if collision is not None:
-            mesh_notes = mesh_pair_notes(data, collision)
-            collision, tolerance_notes = _thin_tolerance(data, collision, names, kinds)
-            mesh_notes = mesh_notes + tolerance_notes
         response = None
         if collision is not None:
             from vrsim_cli.model.collision import thinnest
-            from vrsim_cli.model.response import THIN_FALLS, compile_response
+            from vrsim_cli.model.response import THIN_FALLS, compile_response, thin_reason
+            mesh_notes = mesh_pair_notes(data, collision)
+            extent, body = thinnest(collision, np.array(kinds) == BODY_DYNAMIC)
+            collision, tolerance_notes = _thin_tolerance(data, collision, names[body], extent)
+            mesh_notes = mesh_notes + tolerance_notes
             integrator = str(data.get("integrator", "symplectic-euler"))
             fall = max(DRIFT_SHARE.get(integrator, 1.0), 0.5) * \
                 math.hypot(*_vec3(gravity, dim)) * dt * dt  # m in one step
-            extent, body = thinnest(collision, np.array(kinds) == BODY_DYNAMIC)
-            thin = (names[body], extent, fall) if fall > 0.0 and \
+            # a thin body that another may rest on (two dynamic bodies with a shape)
+            shaped = sum(1 for shape, kind in zip(shapes, kinds)
+                         if shape is not None and kind == BODY_DYNAMIC)
+            thin = (names[body], extent, fall) if fall > 0.0 and shaped >= 2 and \
                 extent < THIN_FALLS * fall + collision.tolerance else None
             response = compile_response(scene, len(names), _vec3(gravity, dim),
                                         collision.tolerance, problems, thin)
-            if response is not None and response.impacts == "located" and thin is not None \
-                    and int((np.array(kinds) == BODY_DYNAMIC).sum()) >= 2:
+            if response is not None and response.impacts == "located" and thin is not None:
                 mesh_notes = mesh_notes + (
-                    f"body '{thin[0]}' is {thin[1] * 1e3:.3g} mm thin, less than twice the "
-                    f"{thin[2] * 1e3:.3g} mm a resting body falls in one step plus the "
-                    f"tolerance: located impacts find resting contacts after the step, "
-                    f"and a body resting on it may pass through; impacts: stepped (what "
-                    f"auto picks) or a smaller dt holds such stacks",)
+                    f"{thin_reason(thin)}: located impacts find resting contacts after the "
+                    f"step, and a body resting on it may pass through; impacts: stepped "
+                    f"(what auto picks) or a smaller dt holds such stacks",)
             if response is not None and rigid is not None and (
                     BODY_KINEMATIC in kinds or _superelastic(response)):
                 # a kinematic body that hits others does work on them, and so would an
@@ -608,12 +607,12 @@ def _fitting_rates(rate: float, dt: float, frame_rate: float) -> list[float]:
     return sorted(near | {frame_rate}, key=lambda r: abs(r - rate))[:4]
 
 
-def _thin_tolerance(data: dict, collision, names, kinds) -> tuple:
+def _thin_tolerance(data: dict, collision, name: str, extent: float) -> tuple:
     """(collision, notes): the collision model with its default tolerance lowered to
-    TOLERANCE_SHARE of the thinnest dynamic body's extent where that is less than the
-    default, and a note saying so. A tolerance the scene sets is kept."""
-    from vrsim_cli.model.collision import DEFAULT_TOLERANCE, TOLERANCE_SHARE, thinnest
-    extent, body = thinnest(collision, np.array(kinds) == BODY_DYNAMIC)
+    TOLERANCE_SHARE of the thinnest dynamic body's extent (m; `name` that body) where
+    that is less than the default, and a note saying so. A tolerance the scene sets is
+    kept."""
+    from vrsim_cli.model.collision import DEFAULT_TOLERANCE, TOLERANCE_SHARE
     if "tolerance" in (data.get("collision") or {}):
         # a set tolerance is kept, but one of half a body's thinness or more reports
         # contacts across that body (0.3 mm cards at 1 mm ended 13.6 mm away; an
@@ -621,7 +620,7 @@ def _thin_tolerance(data: dict, collision, names, kinds) -> tuple:
         if collision.tolerance >= 0.5 * extent:
             return collision, (
                 f"collision.tolerance {collision.tolerance * 1e3:.3g} mm is at least half "
-                f"of body '{names[body]}' ({extent * 1e3:.3g} mm thin): contacts may be "
+                f"of body '{name}' ({extent * 1e3:.3g} mm thin): contacts may be "
                 f"reported across it and stacks of it may not stand; without the key "
                 f"the tolerance would be {TOLERANCE_SHARE * extent * 1e3:.3g} mm",)
         return collision, ()
@@ -629,7 +628,7 @@ def _thin_tolerance(data: dict, collision, names, kinds) -> tuple:
         return collision, ()
     tolerance = TOLERANCE_SHARE * extent
     note = (f"collision.tolerance is {tolerance * 1e3:.3g} mm, a tenth of body "
-            f"'{names[body]}' ({extent * 1e3:.3g} mm thin), not the default "
+            f"'{name}' ({extent * 1e3:.3g} mm thin), not the default "
             f"{DEFAULT_TOLERANCE * 1e3:g} mm: set collision.tolerance to choose another")
     return dataclasses.replace(collision, tolerance=tolerance), (note,)
 

@@ -94,11 +94,19 @@ class ResponseModel:
         return mode, eps, mu
 
 
+def thin_reason(thin: tuple) -> str:
+    """Why a body counts as thin (`compile_response`'s `thin`), for `validate`."""
+    name, extent, fall = thin
+    return (f"body '{name}' is {extent * 1e3:.3g} mm thin, less than twice the "
+            f"{fall * 1e3:.3g} mm a resting body falls in one step plus the tolerance")
+
+
 def compile_response(scene, n_body: int, gravity, tolerance: float, problems: list,
                      thin: tuple | None = None) -> ResponseModel | None:
     """The scene's response, or None when no pair can respond (all `none`). thin: (body
     name, its thinnest extent m, the fall m of a resting body in one free-flight step)
-    when a dynamic body is thinner than twice that fall plus the tolerance (THIN_FALLS)."""
+    when a dynamic body is thinner than twice that fall plus the tolerance (THIN_FALLS)
+    and another dynamic body with a shape may rest on it."""
     data = scene.data
     top = data.get("collision") or {}
     default_mode = MODES.index(top.get("response", "impulse"))
@@ -146,11 +154,9 @@ def compile_response(scene, n_body: int, gravity, tolerance: float, problems: li
         impacts = "located" if shaped <= AUTO_LOCATED_BODIES else "stepped"
         why = (f"auto: {shaped} dynamic bodies with a shape, "
                f"{'at most' if impacts == 'located' else 'more than'} {AUTO_LOCATED_BODIES}")
-        if impacts == "located" and thin is not None and shaped >= 2:
+        if impacts == "located" and thin is not None:
             impacts = "stepped"
-            why = (f"auto: body '{thin[0]}' is {thin[1] * 1e3:.3g} mm thin, less than "
-                   f"twice the {thin[2] * 1e3:.3g} mm a resting body falls in one step "
-                   f"plus the tolerance: located mode finds resting contacts after "
+            why = (f"auto: {thin_reason(thin)}: located mode finds resting contacts after "
                    f"the step, when a body on a thin one may be through it")
     stepped = impacts == "stepped"
     return ResponseModel(
