@@ -26,7 +26,9 @@ SPACING = 200.0  # m between cases in one scene (a case's bodies move < 50 m)
 # Scenes are built with BLAS-free arithmetic (products and sums in a fixed order):
 # numpy's `@` and `np.linalg.norm` go through BLAS, whose kernels round differently on
 # different CPUs (OPENBLAS_CORETYPE=Prescott moved a bullet's position by an ulp), and a
-# test must pose the same scene on every machine.
+# test must pose the same scene on every machine. (Not vrsim_cli.maths.products: its
+# einsum adds in another order, so every scene would move by ulps, and the regression
+# scenes of test_located_tunnelling.py reproduce their bug with exactly these bits.)
 
 
 def dot(a, b) -> float:
