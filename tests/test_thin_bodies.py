@@ -177,3 +177,16 @@ def test_the_default_tolerance_of_thin_bodies():
     assert m.collision.tolerance == 0.0001 and not any("tolerance" in n for n in m.notes)
     r = _auto([_plate("a", 0.05, 0.1), _plate("b", 0.15, 0.1)])
     assert r.rest_speed == pytest.approx((2 * 9.81 * 1e-3) ** 0.5, rel=1e-12)
+
+
+@pytest.mark.parametrize("bodies", [
+    "bodies: []\n",
+    "bodies:\n  - {name: wall, type: static, shape: {type: box, size: [1, 1, 0.001]}}\n"])
+def test_no_dynamic_body_no_thin_rule(bodies):
+    """No dynamic body with a shape (none at all, or only a thin static one): the
+    tolerance stays the default and nothing is called thin (hypothesis found the empty
+    scene raising IndexError while the rule looked up the thinnest body's name)."""
+    m = compile_model(parse_scene("vrsim: 1\nduration: 1.0\ncollision: {continuous: false}\n"
+                                  + bodies))
+    assert m.collision.tolerance == 1e-3
+    assert not any("thin" in n for n in m.notes)

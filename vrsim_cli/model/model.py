@@ -274,7 +274,8 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
             from vrsim_cli.model.response import THIN_FALLS, compile_response, thin_reason
             mesh_notes = mesh_pair_notes(data, collision)
             extent, body = thinnest(collision, np.array(kinds) == BODY_DYNAMIC)
-            collision, tolerance_notes = _thin_tolerance(data, collision, names[body], extent)
+            name = names[body] if body >= 0 else ""  # (no dynamic shape: extent is inf)
+            collision, tolerance_notes = _thin_tolerance(data, collision, name, extent)
             mesh_notes = mesh_notes + tolerance_notes
             integrator = str(data.get("integrator", "symplectic-euler"))
             fall = max(DRIFT_SHARE.get(integrator, 1.0), 0.5) * \
@@ -282,7 +283,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
             # a thin body that another may rest on (two dynamic bodies with a shape)
             shaped = sum(1 for shape, kind in zip(shapes, kinds)
                          if shape is not None and kind == BODY_DYNAMIC)
-            thin = (names[body], extent, fall) if fall > 0.0 and shaped >= 2 and \
+            thin = (name, extent, fall) if fall > 0.0 and shaped >= 2 and \
                 extent < THIN_FALLS * fall + collision.tolerance else None
             response = compile_response(scene, len(names), _vec3(gravity, dim),
                                         collision.tolerance, problems, thin)
