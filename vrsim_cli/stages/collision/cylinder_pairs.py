@@ -1,4 +1,5 @@
-"""Contact manifolds of cylinder pairs: a box and a cylinder, two cylinders.
+"""Contact manifolds of the pairs fcl gives one point: a box and a cylinder, two
+cylinders, and a convex hull against a box, a cylinder, a hull or a capsule.
 
 python-fcl (GJK/EPA, `fcl_adapter`) finds such a pair's deepest point and normal, and
 nothing else: a cylinder standing on a box, a box on a cylinder's cap or cylinders end
@@ -26,6 +27,15 @@ direction). Two cylinders lying side by side (parallel axes) touch along a line:
 ends. Anything else (an edge on a rim, crossed sides, a rim on a rim) keeps fcl's
 contacts, as before.
 
+A convex hull's faces are its facets (`maths.polytope.facets`: coplanar triangles merged
+into one polygon; a hull read from a file is triangles, and a box resting on a hull
+rested on one triangle's corner). Its candidate axes are its facet normals as they are
+(a hull is not symmetric), its reach along a direction its farthest vertex, and a
+capsule facing a reference face offers its core segment moved by its radius towards
+it (the capsule's farthest points along that direction, each over its core point). On
+3235969 a box on a hull, a hull on a box and a hull on a hull moved 2-6 cm and spun up
+to 11 m/s in 1 s (an independent review); `tests/test_hull_stacks.py`.
+
 fcl is not trusted where shapes touch: it misses them now and then, and its probe for
 them (`fcl_adapter._touching`) can answer with a normal across a face (a can resting on
 a wide box 2.5 m from its centre got (-0.70, -0.10, -0.70)). So the faces' separating
@@ -41,8 +51,9 @@ import math
 
 import numpy as np
 
+from vrsim_cli.maths.polytope import Facets, facets
 from vrsim_cli.maths.products import dot, matmul
-from vrsim_cli.model.collision import BOX, CYLINDER
+from vrsim_cli.model.collision import BOX, CAPSULE, CONVEX, CYLINDER
 from vrsim_cli.stages.collision import fcl_adapter
 from vrsim_cli.stages.collision.contacts import no_pair_contacts, reduce_manifold
 
@@ -64,6 +75,12 @@ def box_cylinder(cm, world, ia, ib, margin):
 
 def cylinder_cylinder(cm, world, ia, ib, margin):
     """Cylinder ia against cylinder ib."""
+    return _pairs(cm, world, ia, ib, margin)
+
+
+def hull_pairs(cm, world, ia, ib, margin):
+    """A convex hull ia against a box, a cylinder, a hull or a capsule ib (the module
+    docstring: a hull's facets are its faces)."""
     return _pairs(cm, world, ia, ib, margin)
 
 
@@ -163,22 +180,51 @@ def _pairs(cm, world, ia, ib, margin):
     return _joined(out)
 
 
-def _extent(cm, world, g, d):
-    """Half the extent (m) of geom g (box or cylinder) along unit direction d."""
+def hull(cm, g) -> Facets:
+    """The facets of convex hull geom g (cached by its vertex array, as fcl's geometry)."""
+    key = ("facets", id(cm.geom_vertices[g]))
+    if key not in cm.cache:
+        cm.cache[key] = facets(cm.geom_vertices[g], cm.geom_faces[g])
+    return cm.cache[key]
+
+
+def _support(cm, world, g, d):
+    """How far (m) geom g (box, cylinder, capsule or hull) reaches from its centre along
+    unit direction d: max over its points x of d . (x - centre)."""
     R = world.rot[g]
-    if cm.geom_type[g] == BOX:
+    kind = cm.geom_type[g]
+    if kind == BOX:
         return dot(np.abs(matmul(R.T, d)), world.half[g])
+    if kind == CONVEX:
+        return float(matmul(cm.geom_vertices[g], matmul(R.T, d)).max())
     along = abs(dot(R[:, 1], d))
+    if kind == CAPSULE:
+        return world.half[g][1] * along + cm.geom_radius[g]
     return world.half[g][1] * along + cm.geom_radius[g] * math.sqrt(max(0.0, 1.0 - along * along))
 
 
 def separation(cm, world, a, b, d):
     """How far apart (m; negative: overlapping) geoms a and b are along unit direction d
-    (from a to b): the gap between their projections, exact for boxes and cylinders. No
+    (from a to b): the gap between their projections, exact for these shapes. No
     direction separates them more than the contact normal does (the separating-axis
     theorem for convex shapes)."""
-    return dot(world.pos[b] - world.pos[a], d) - _extent(cm, world, a, d) - \
-        _extent(cm, world, b, d)
+    return dot(world.pos[b] - world.pos[a], d) - _support(cm, world, a, d) - \
+        _support(cm, world, b, -d)
+
+
+def _face_normals(cm, world, g, centre):
+    """The candidate separating directions of geom g's faces, from g towards the other
+    geom (`centre`: from g's centre to the other's): a box's three axes and a cylinder's
+    axis, turned towards it; a hull's facet normals as they are (a hull is not
+    symmetric: its face at -n is another face); none for a capsule."""
+    R = world.rot[g]
+    kind = cm.geom_type[g]
+    if kind == CONVEX:
+        return list(matmul(hull(cm, g).normals, R.T))
+    if kind == CAPSULE:
+        return []
+    axes = (R[:, 0], R[:, 1], R[:, 2]) if kind == BOX else (R[:, 1],)
+    return [axis if dot(axis, centre) >= 0.0 else -axis for axis in axes]
 
 
 def face_axis(cm, world, a, b):
@@ -188,11 +234,9 @@ def face_axis(cm, world, a, b):
     (unit normal from a to b, separation m; negative: overlap)."""
     centre = world.pos[b] - world.pos[a]
     best, best_gap = None, -np.inf
-    for g in (a, b):
-        R = world.rot[g]
-        axes = (R[:, 0], R[:, 1], R[:, 2]) if cm.geom_type[g] == BOX else (R[:, 1],)
-        for axis in axes:
-            d = axis if dot(axis, centre) >= 0.0 else -axis
+    for g, sign in ((a, 1.0), (b, -1.0)):
+        for d in _face_normals(cm, world, g, sign * centre):
+            d = sign * d  # from a to b
             gap = separation(cm, world, a, b, d)
             # of two axes within ALIGN_COS of each other, the first (a's): two nearly
             # parallel caps swapped the normal with every wobble, and stepped mode's warm
@@ -212,7 +256,16 @@ def _face(cm, world, g, d):
     (outward normal, vertices (m, 3) in cyclic order, |normal . d|), or None for a
     cylinder whose cap does not face d."""
     c, R = world.pos[g], world.rot[g]
-    if cm.geom_type[g] == BOX:
+    kind = cm.geom_type[g]
+    if kind == CONVEX:  # the facet most along d (within ALIGN_COS it is the face)
+        f = hull(cm, g)
+        along = matmul(f.normals, matmul(R.T, d))
+        k = int(np.argmax(along))
+        verts = c + matmul(np.asarray(cm.geom_vertices[g], float)[f.loops[k]], R.T)
+        return matmul(R, f.normals[k]), verts, float(along[k])
+    if kind == CAPSULE:
+        return None
+    if kind == BOX:
         local = matmul(R.T, d)
         k = int(np.argmax(np.abs(local)))
         s = 1.0 if local[k] >= 0.0 else -1.0
@@ -262,6 +315,11 @@ def _incident(cm, world, g, d):
         return face[1], True
     c, R = world.pos[g], world.rot[g]
     axis, h = R[:, 1], world.half[g][1]
+    if cm.geom_type[g] == CAPSULE:
+        # its core segment moved by r along d: each point the capsule's farthest along
+        # d over that core point (exact at the ends when it tilts)
+        line = c + cm.geom_radius[g] * d
+        return np.array([line - h * axis, line + h * axis]), False
     line = c + cm.geom_radius[g] * _radial(R, d)
     return np.array([line - h * axis, line + h * axis]), False
 
@@ -318,9 +376,10 @@ def _side_planes(verts, nf):
 
 
 def manifold(cm, world, a, b, n0, depth0, margin):
-    """The manifold of geoms a and b (box or cylinder) around fcl's deepest contact
-    (normal n0 from a to b, depth0 m): (points (k, 3), normal a -> b, depths (k,)), or
-    None when no face lies across n0 or the deepest point is not on the faces' overlap."""
+    """The manifold of geoms a and b (box, cylinder, hull; b may be a capsule) around
+    fcl's deepest contact (normal n0 from a to b, depth0 m): (points (k, 3), normal
+    a -> b, depths (k,)), or None when no face lies across n0 or the deepest point is not
+    on the faces' overlap."""
     n0 = np.asarray(n0, float)
     fa, fb = _face(cm, world, a, n0), _face(cm, world, b, -n0)
     ref = None
