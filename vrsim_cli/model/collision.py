@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vrsim_cli.maths.polytope import facets, widths
 from vrsim_cli.maths.products import norm
 
 from vrsim_cli.maths.meshes import PROXY_SAMPLES, load_mesh, proxy, proxy_errors
@@ -145,8 +146,8 @@ def thinnest(cm: "CollisionModel", dynamic) -> tuple[float, int]:
     """(m, body): the least extent of a dynamic body's collision shape across its thinnest
     direction, and that body ((inf, -1) without one). `dynamic`: (n_body,) bool. A
     sphere or capsule: its diameter; a box: its shortest side; a cylinder: the lesser of
-    its diameter and length; a hull or mesh: the shortest side of its vertices' box in
-    the body frame (an upper bound on its thinness along other directions)."""
+    its diameter and length; a hull or mesh: its least extent along its faces' normals
+    (`_mesh_thinness`)."""
     best, body = math.inf, -1
     for g in range(len(cm.geom_body)):
         b = int(cm.geom_body[g])
@@ -161,11 +162,37 @@ def thinnest(cm: "CollisionModel", dynamic) -> tuple[float, int]:
         elif kind == BOX:
             extent = 2.0 * float(half.min())
         else:
-            v = np.asarray(cm.geom_vertices[g])
-            extent = float((v.max(axis=0) - v.min(axis=0)).min()) if len(v) else math.inf
+            extent = _mesh_thinness(cm.geom_vertices[g], cm.geom_faces[g], kind)
         if extent < best:
             best, body = extent, b
     return best, body
+
+
+THIN_NORMALS = 1024  # a mesh's triangle normals are tried this many at a time
+
+
+def _mesh_thinness(vertices, faces, kind) -> float:
+    """A hull's or mesh's least extent (m) along its faces' normals: exact for a plate,
+    prism or box in any pose within its file (the shortest side of the vertices' box
+    read 36.8 mm for a 2 mm plate turned 45 deg in its file: an independent review); an
+    upper bound otherwise (`maths.polytope.widths`). Without faces, that box's side."""
+    v = np.asarray(vertices, float) if vertices is not None else np.zeros((0, 3))
+    if not len(v):
+        return math.inf
+    extent = float((v.max(axis=0) - v.min(axis=0)).min())
+    if faces is None or not len(faces):
+        return extent
+    if kind == CONVEX:
+        normals = facets(v, faces).normals
+    else:  # a mesh: its triangles' distinct normals (a plate has few)
+        tri = v[np.asarray(faces, np.int64)]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.sqrt(np.einsum("ij,ij->i", n, n))
+        n = n[length > 0.0] / length[length > 0.0, None]
+        normals = np.unique(np.round(n, 12), axis=0)
+    for start in range(0, len(normals), THIN_NORMALS):
+        extent = min(extent, float(widths(v, normals[start:start + THIN_NORMALS]).min()))
+    return extent
 
 
 def _row(body: int, kind: int, geometry: str) -> dict:
