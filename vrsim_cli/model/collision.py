@@ -151,21 +151,42 @@ def thinnest(cm: "CollisionModel", dynamic) -> tuple[float, int]:
     best, body = math.inf, -1
     for g in range(len(cm.geom_body)):
         b = int(cm.geom_body[g])
-        kind = int(cm.geom_type[g])
-        if not dynamic[b] or kind == PLANE:
+        if not dynamic[b] or int(cm.geom_type[g]) == PLANE:
             continue
-        half = cm.geom_half[g]
-        if kind in (SPHERE, CAPSULE):
-            extent = 2.0 * float(cm.geom_radius[g])
-        elif kind == CYLINDER:
-            extent = 2.0 * min(float(cm.geom_radius[g]), float(half[1]))
-        elif kind == BOX:
-            extent = 2.0 * float(half.min())
-        else:
-            extent = _mesh_thinness(cm.geom_vertices[g], cm.geom_faces[g], kind)
+        extent = geom_thinness(cm, g)
         if extent < best:
             best, body = extent, b
     return best, body
+
+
+def geom_thinness(cm: "CollisionModel", g: int) -> float:
+    """The least extent (m) of geom g across its thinnest direction (`thinnest`); a
+    plane's is infinite."""
+    kind = int(cm.geom_type[g])
+    half = cm.geom_half[g]
+    if kind == PLANE:
+        return math.inf
+    if kind in (SPHERE, CAPSULE):
+        return 2.0 * float(cm.geom_radius[g])
+    if kind == CYLINDER:
+        return 2.0 * min(float(cm.geom_radius[g]), float(half[1]))
+    if kind == BOX:
+        return 2.0 * float(half.min())
+    return _mesh_thinness(cm.geom_vertices[g], cm.geom_faces[g], kind)
+
+
+def body_thinness(cm: "CollisionModel", n_body: int) -> np.ndarray:
+    """(n_body,) m: each body's thinnest geom (`geom_thinness`; a triangle mesh, which
+    collides on both sides of its surface, and a body without geoms: infinite). Cached."""
+    key = ("body thinness", n_body)
+    if key not in cm.cache:
+        out = np.full(n_body, math.inf)
+        for g in range(len(cm.geom_body)):
+            if int(cm.geom_type[g]) != MESH:
+                b = int(cm.geom_body[g])
+                out[b] = min(out[b], geom_thinness(cm, g))
+        cm.cache[key] = out
+    return cm.cache[key]
 
 
 THIN_NORMALS = 1024  # a mesh's triangle normals are tried this many at a time

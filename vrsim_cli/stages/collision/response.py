@@ -45,7 +45,7 @@ from vrsim_cli.maths.products import dot, matmul
 
 from vrsim_cli.maths.rotation import cross, exp_so3, quat_from_matrix
 from vrsim_cli.maths.spatial import quat_conjugate, quat_rotate
-from vrsim_cli.model.collision import BOX, CAPSULE, CYLINDER, SPHERE
+from vrsim_cli.model.collision import BOX, CAPSULE, CYLINDER, SPHERE, body_thinness
 from vrsim_cli.model.model import BODY_DYNAMIC, DRIFT_SHARE
 from vrsim_cli.model.response import IMPULSE, NONE, SLIDE, STOP
 from vrsim_cli.stages.collision import solver
@@ -67,6 +67,7 @@ ROOT_TOLERANCE = 1e-13  # of the step: the time of impact is found to this fract
 MARCH_STEPS = 1024  # conservative-advancement steps along the path before sampling the rest
 LEAVE_SAMPLES = 16  # samples of the rest of the step after MARCH_STEPS
 ARM_ROUNDOFF = 1e-12  # of the coordinates: a turning pair's gap must open beyond this
+THROUGH_SHARE = 0.25  # of the thinner body: the most a watched pair's material fall counts
 
 
 def detect(model, state) -> Contacts:
@@ -371,8 +372,11 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
     # lower. A gap that falls to the tolerance below where its resting points can be has
     # hit with another point (a capsule at 661 m/s went through a 1 cm plate so).
     sink = np.where(back, np.minimum(sep0, 0.0) - cm.tolerance, -np.inf)
+    # (the material part of that fall counts up to THROUGH_SHARE of the thinner body)
+    thin = body_thinness(cm, len(model.body_type))
+    cap = THROUGH_SHARE * np.minimum(thin[[p[0] for p in pairs]], thin[[p[1] for p in pairs]])
     fall = _resting_fall(model, s, end, h, pairs, closing, c0 if touching else None,
-                         state_at)
+                         state_at, cap)
     bracket = _march(separations, sep0, arm, toi, h, mu, cm.tolerance, (sink, fall))
     if bracket is None:
         return None
@@ -381,7 +385,7 @@ def _first_impact(model, s, end, h: float, touching: set, advance, c0=None, c1=N
                  h)
 
 
-def _resting_fall(model, s, end, h, pairs, closing, c0, state_at):
+def _resting_fall(model, s, end, h, pairs, closing, c0, state_at, room):
     """fall(t) -> (len(pairs),) m: how far each touching pair's resting points can sink
     by t after s. Kinematic: v0 t + k a t^2 (v0 the pair's approach at s, a the two
     bodies' mean acceleration over the step, k the integrator's share of it in the
@@ -390,13 +394,13 @@ def _resting_fall(model, s, end, h, pairs, closing, c0, state_at):
     point is not a body point). Material: the sinking of the body points at the
     contacts of s (c0) along the integrator's own path, which includes what the
     kinematic bound misses: a torque or an off-centre force swings a pressed edge down.
-    (Unlimited: a pressed point that sinks far in a step, a corner pressed with 10 times
-    a box's weight at dt 1/30 s, is found deep at the step's end, and the box may be
-    thrown; capping the material bound at 2 tolerances beyond the kinematic one cut
-    those steps with events instead, whose friction let pressed boxes slide 0.46 m in
-    1 s at dt 10 ms where they had stood still. docs/collision-response.md, Known
-    limits.) Both bounds depend on the pair alone, so mirror-image pairs keep
-    mirror-image events."""
+    (Not capped at the tolerance: a pressed point that sinks far in a step, a corner
+    pressed with 10 times a box's weight at dt 1/30 s, is found deep at the step's end,
+    and the box may be thrown; capping the material bound at 2 tolerances beyond the
+    kinematic one cut those steps with events instead, whose friction let pressed boxes
+    slide 0.46 m in 1 s at dt 10 ms where they had stood still. docs/collision-response.md,
+    Known limits. It stops at `room`, the caller's share of the thinner body.) Both
+    bounds depend on the pair alone, so mirror-image pairs keep mirror-image events."""
     v0 = np.array([max(closing.get(p, 0.0), 0.0) for p in pairs])
     accel = np.linalg.norm(end.body_vel - s.body_vel, axis=1) / h  # m/s^2, mean
     pace = accel[[p[0] for p in pairs]] + accel[[p[1] for p in pairs]]
@@ -424,12 +428,18 @@ def _resting_fall(model, s, end, h, pairs, closing, c0, state_at):
                  quat_rotate(qa, local_a)) * quat_rotate(qa, local_n)).sum(1)
     start = apart(s)  # (the centres stay their radii from the surfaces: they cancel)
 
+    # The material bound measures the points along A's turning normal: points that slide
+    # apart fast on a body that turns fast (a capsule after an 895 m/s impact on a
+    # dynamic 1 cm plate) read as sinking metres in a step, and the other end of the
+    # capsule went through the plate unseen. No point may sink further than into the
+    # thinner body: that bound stops at `room` ((len(pairs),) m, THROUGH_SHARE of it).
+
     def fall(t):
         kinematic = v0 * t + share * pace * t * t
         rise = apart(state_at(t)) - start
         material = np.zeros(len(pairs))
         np.maximum.at(material, pair_of, -rise)
-        return np.maximum(kinematic, material)
+        return np.maximum(kinematic, np.minimum(material, room))
     return fall
 
 
