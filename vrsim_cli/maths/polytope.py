@@ -53,15 +53,18 @@ def facets(vertices, faces) -> Facets:
         if area2 > 0.0:
             tris.append((area2, n / area2, a))
     tris.sort(key=lambda t: -t[0])  # largest first: each facet takes its best normal
-    normals, offsets = [], []
+    normals, offsets = np.zeros((len(tris), 3)), np.zeros(len(tris))
+    count = 0
     for _, n, a in tris:
         o = _dot(n, v[a])
-        if any(_dot(n, m) >= COPLANAR_COS and abs(o - p) <= tol
-               for m, p in zip(normals, offsets)):
+        # (numpy's own loops over the facets so far: an icosphere has 1280)
+        same = (np.einsum("fi,i->f", normals[:count], n) >= COPLANAR_COS) & \
+            (np.abs(offsets[:count] - o) <= tol)
+        if same.any():
             continue
-        normals.append(n)
-        offsets.append(o)
-    normals = np.array(normals).reshape(-1, 3)
+        normals[count], offsets[count] = n, o
+        count += 1
+    normals = normals[:count]
     proj = np.einsum("fi,vi->fv", normals, v)  # numpy's own loops: no BLAS
     top = proj.max(axis=1)
     loops = []
