@@ -237,11 +237,12 @@ def face_axis(cm, world, a, b):
     best, best_gap = None, -np.inf
     for g, sign in ((a, 1.0), (b, -1.0)):
         dirs = [sign * d for d in _face_normals(cm, world, g, sign * centre)]  # a to b
+        rows = np.array(dirs).reshape(-1, 3)
         if cm.geom_type[g] == CONVEX:  # many facets: their separations at once
-            gaps = _separations(cm, world, a, b, np.array(dirs).reshape(-1, 3)).tolist()
+            gaps = _separations(cm, world, a, b, rows).tolist()
         else:
             gaps = [separation(cm, world, a, b, d) for d in dirs]
-        for d, gap, (x, y, z) in zip(dirs, gaps, np.array(dirs).reshape(-1, 3).tolist()):
+        for d, gap, (x, y, z) in zip(dirs, gaps, rows.tolist()):
             # of two axes within ALIGN_COS of each other, the first (a's): two nearly
             # parallel caps swapped the normal with every wobble, and stepped mode's warm
             # start, by rank, left a cylinder on a cylinder jittering. Only axes along
