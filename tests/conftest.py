@@ -73,10 +73,16 @@ def pytest_configure(config):
 # --no-loadscope-reorder`, pyproject.toml) hands out whole files in collection order as
 # workers free up, so long files first leaves only short ones for the end and the workers
 # finish together, rather than one running a long file alone while the other idles.
-LONGEST_FIRST = ("test_stepped.py", "test_cpu_independence.py", "test_memory.py",
-                 "test_hostile_input.py", "test_sweep.py", "test_hostile_schema.py",
-                 "test_located_tunnelling.py", "test_data_loss.py", "test_incline.py",
-                 "test_loop.py", "test_kernels.py", "test_bench.py", "test_golden.py",
+# With two workers, each is first handed two files (the 1st and 3rd to gw0, the 2nd and
+# 4th to gw1): gw0 takes the first stepped compile of the warm-up (~70 s on a fresh
+# machine) and gw1 starts its tests once the rest of the warm-up is done (~35 s), so its
+# two files (2nd, 4th) are long ones that need no stepped entry, which would make it wait.
+LONGEST_FIRST = ("test_stepped.py", "test_data_loss.py", "test_cpu_independence.py",
+                 "test_resting_scenes.py", "test_memory.py", "test_located_tunnelling.py",
+                 "test_hostile_input.py", "test_resting_blocks.py", "test_hull_stacks.py",
+                 "test_sweep.py", "test_hostile_schema.py", "test_cylinder_manifolds.py",
+                 "test_tipping_landing.py", "test_incline.py", "test_loop.py",
+                 "test_kernels.py", "test_bench.py", "test_golden.py",
                  "test_collision_response.py", "test_guard.py")
 
 
@@ -181,8 +187,9 @@ STEPPED_INTEGRATORS = ("symplectic-euler", "verlet", "rk4")
 def warm_up_units() -> list:
     """(name, callable, prerequisite) of the kernels every session compiles up front. The
     later stepped entries wait for the first: they share most of its ~150 kernels, which
-    they then load from the cache (~30 s each here) instead of compiling them again side
-    by side with it (~100 s each)."""
+    they then load from the cache (~15 s each here) instead of compiling them again side
+    by side with it (~70 s each). A scenario's prerequisite is a callable (`_stepped_of`):
+    the stepped entry the scenario runs on, if any."""
     from functools import partial
 
     from vrsim_cli.kernels.dynamics import INTEGRATOR_CODES
@@ -192,16 +199,31 @@ def warm_up_units() -> list:
             for k, name in enumerate(STEPPED_INTEGRATORS)] + \
         [(f"integrator-{name}", partial(_warm_integrator, name), None)
          for name in INTEGRATOR_CODES] + \
-        [(f"scenario-{path.stem}", partial(_warm_scenario, path), None)
+        [(f"scenario-{path.stem}", partial(_warm_scenario, path), partial(_stepped_of, path))
          for path in sorted(SCENARIOS.glob("*.yaml"))]
+
+
+def _stepped_of(path: Path) -> str | None:
+    """The warm-up unit of the stepped entry scenario `path` runs on (its first compile is
+    that unit's work, made under `loop._compile_apart`'s lock), or None."""
+    from vrsim_cli.api import load
+    from vrsim_cli.loop import _stepped
+
+    model = load(path, duration=0.2)
+    if not _stepped(model) or model.integrator not in STEPPED_INTEGRATORS:
+        return None
+    return f"stepped-{model.integrator}"
 
 
 def warm_up(lock_dir: Path, worker: int, workers: int, poll_s: float = 0.2) -> list[str]:
     """Compile (or load) every unit of `warm_up_units` that no other worker of this
     session has: each worker goes down the list (worker k starts k/n of the way down, so
     the workers start on different units) taking every unit whose lock is free and whose
-    prerequisite is done, and polls until every unit is done by someone. Returns the names
-    this worker ran."""
+    prerequisite is done. It returns (to its tests) once every unit left is being built by
+    another worker or waits for a prerequisite another worker builds: that worker goes on
+    to the units that wait for it, and a test that needs a stepped entry meanwhile waits
+    for its compile (`loop._compile_apart`'s lock) rather than compiling it too. Returns
+    the names this worker ran."""
     import fcntl
     import time
 
@@ -209,17 +231,34 @@ def warm_up(lock_dir: Path, worker: int, workers: int, poll_s: float = 0.2) -> l
     start = len(units) * worker // max(workers, 1)
     units = units[start:] + units[:start]
     lock_dir.mkdir(parents=True, exist_ok=True)
+    after_of = {}
 
     def done(name):
         return (lock_dir / f"{name}.done").exists()
+
+    def prerequisite(name, after):
+        if name not in after_of:
+            after_of[name] = after() if callable(after) else after
+        return after_of[name]
+
+    def held(name):  # being built by another worker now
+        with open(lock_dir / f"{name}.lock", "a+") as lock:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+            return False  # closing the file releases the probe's lock
 
     ran = []
     while True:
         left = [unit for unit in units if not done(unit[0])]
         if not left:
             return ran
+        others = True  # every unit left is another worker's (or waits for one of theirs)
         for name, build, after in left:
+            after = prerequisite(name, after)
             if after is not None and not done(after):
+                others = others and held(after)
                 continue
             with open(lock_dir / f"{name}.lock", "a+") as lock:
                 try:
@@ -232,6 +271,9 @@ def warm_up(lock_dir: Path, worker: int, workers: int, poll_s: float = 0.2) -> l
                         (lock_dir / f"{name}.json").write_text(json.dumps(record))
                     (lock_dir / f"{name}.done").touch()
                     ran.append(name)
+                    others = False  # the list is read again: more may be free now
+        if others:
+            return ran
         time.sleep(poll_s)
 
 
@@ -259,10 +301,18 @@ def warm_up_record(request, tmp_path_factory, _warm_up_workers):
     worker = getattr(request.config, "workerinput", None)
     folder = tmp_path_factory.getbasetemp().parent / WARM_UP_FOLDER
 
-    def record(unit: str) -> dict | None:
+    def record(unit: str, timeout_s: float = 900.0) -> dict | None:
+        if worker is None or worker["workercount"] < 2:
+            return None
+        import time
+
+        # another worker may still build it (`warm_up` returns before every unit is done)
+        deadline = time.monotonic() + timeout_s
+        while not (folder / f"{unit}.done").exists():
+            assert time.monotonic() < deadline, f"warm-up unit {unit} never finished"
+            time.sleep(0.2)
         path = folder / f"{unit}.json"
-        return json.loads(path.read_text()) \
-            if worker is not None and worker["workercount"] >= 2 and path.exists() else None
+        return json.loads(path.read_text()) if path.exists() else None
 
     return record
 
