@@ -224,6 +224,12 @@ bodies:
 """
 
 
+# said with the compile notice: the stepped entry is the largest compile (~150 kernels;
+# 72-86 s for the first integrator on this project's 2-core AMD EPYC machine, see
+# docs/benchmarks.md), and a user who hears nothing for a minute takes the run for hung
+STEPPED_COMPILE_NOTE = "stepped impacts: about a minute or two the first time"
+
+
 def _compile_marker(integrator: str):
     """The file that says the stepped entry of `integrator` is in the disk cache for this
     CPU and Python; None when there is no cache folder or the JIT is off."""
@@ -247,7 +253,7 @@ def _compile_apart(integrator: str) -> bool:
     marker = _compile_marker(integrator)
     if marker is None or marker.exists() or os.environ.get("VRSIM_COMPILE_APART") == "0":
         return True
-    jit.announce_compile()
+    jit.announce_compile(STEPPED_COMPILE_NOTE)
     started = time.perf_counter()
     lock = _compile_lock(marker)
     if lock is False:

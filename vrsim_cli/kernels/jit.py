@@ -194,12 +194,13 @@ class _CompileWatch(event.Listener):
                 gc.enable()
         self.depth += 1
 
-    def announce(self):
+    def announce(self, expect: str | None = None):
         if not self.announced:
             self.announced = True
             where = cache_dir()
             print("vrsim: compiling kernels for this kind of scene (once"
-                  + (f"; cached in {where})" if where else "; not cached)") + " ...",
+                  + (f"; cached in {where}" if where else "; not cached")
+                  + (f"; {expect})" if expect else ")") + " ...",
                   file=sys.stderr, flush=True)
 
     def on_end(self, ev):
@@ -245,9 +246,10 @@ def compile_report() -> float:
     return _WATCH.seconds
 
 
-def announce_compile() -> None:
-    """Print the first-compile line (once per process) for a compile made elsewhere."""
-    _WATCH.announce()
+def announce_compile(expect: str | None = None) -> None:
+    """Print the first-compile line (once per process) for a compile made elsewhere;
+    `expect`: how long it takes, when that is long enough to say."""
+    _WATCH.announce(expect)
 
 
 def compiled_apart(seconds: float) -> None:
