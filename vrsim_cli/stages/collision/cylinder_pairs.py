@@ -58,6 +58,12 @@ from vrsim_cli.stages.collision import fcl_adapter
 from vrsim_cli.stages.collision.contacts import no_pair_contacts, reduce_manifold
 
 KEEP = 4  # contacts kept of a tilted cap or a face (as box_box and plane_cylinder)
+# ... and of a pair with a hull: its faces may have more corners than 4, and 4 of a
+# hexagon picked by farthest points can leave the centre of mass outside them (a hull
+# resting 45 mm inside its 6-cornered base rocked and walked 0.5 mm/s on a static box;
+# a tumbling prism's sixth cap corner, left out, sank 2.3 mm in stepped mode). As a hull
+# lying flat on a plane (narrowphase.FACE_KEEP).
+HULL_KEEP = 8
 ALIGN_COS = 1.0 - 5e-5  # a face within ~0.01 rad of the normal is the reference face
 PARALLEL_COS = 1.0 - 1e-12  # axes this close are parallel (two lying cylinders)
 TIE_TOL = 1e-9  # m: depths this close are equal when picking the points to keep
@@ -422,7 +428,7 @@ def manifold(cm, world, a, b, n0, depth0, margin):
     if ref is None:
         return _parallel_sides(cm, world, a, b, n0, depth0, margin)
     nf, verts, _ = ref
-    keep = KEEP
+    keep = HULL_KEEP if CONVEX in (cm.geom_type[a], cm.geom_type[b]) else KEEP
     g_ref = a if sign > 0.0 else b
     if cm.geom_type[g_ref] == CYLINDER:
         # a reference cap's rim polygon fixed in its body (at its local x), not turned
