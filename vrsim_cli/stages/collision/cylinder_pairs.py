@@ -450,6 +450,17 @@ def manifold(cm, world, a, b, n0, depth0, margin):
         pts = _rim(pts.mean(axis=0), cap, R, R[:, 1], cm.geom_radius[inc])
         keep = len(_RIM) + 1
     clipped = _clip(pts, closed, planes)
+    if cm.geom_type[inc] == CONVEX:
+        # and the hull's other vertices over the reference face within the margin: a
+        # tumbling hull's vertex on a neighbouring face can reach the face within the
+        # step (stepped mode's margin is the step's travel): left out, a prism's corner
+        # 2.2 mm above a box sank 2.3 mm, a spinning hull's 37 mm above it 4.4 mm
+        v = world.pos[inc] + matmul(np.asarray(cm.geom_vertices[inc], float),
+                                    world.rot[inc].T)
+        over = dot(nf, verts[0]) - matmul(v, nf) >= -margin
+        for s_, o_ in planes:
+            over &= matmul(v, s_) <= o_
+        lowest = lowest + list(v[over])
     if not clipped and not lowest:
         return None
     q = np.array(clipped + lowest)
