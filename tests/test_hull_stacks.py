@@ -396,6 +396,8 @@ def test_a_tumbling_hull_landing_in_stepped_mode_does_not_sink(seed, tmp_path):
     independent review: a vertex of a neighbouring face of the incident face, 2-37 mm
     above the box at the step's start, was no contact of the step and sank 2.3-4.4 mm.)
     Truth: the support's top plane, y = 0."""
+    from vrsim_cli.maths.spatial import quat_to_matrix
+
     rng = np.random.default_rng(7700 + seed)
     dt = float(rng.choice([1 / 60, 1 / 120, 0.01]))
     size = float(rng.uniform(0.08, 0.4))
@@ -412,11 +414,7 @@ def test_a_tumbling_hull_landing_in_stepped_mode_does_not_sink(seed, tmp_path):
     local = np.asarray(written.vertices) - written.center_mass
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
-    w, x, y, z = q
-    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-    y0 = -float((local @ R.T)[:, 1].min()) + float(rng.uniform(0.0, 0.5)) + 1e-4
+    y0 = -float((local @ quat_to_matrix(q).T)[:, 1].min()) + float(rng.uniform(0.0, 0.5)) + 1e-4
     spin = rng.normal(size=3)
     spin *= float(rng.uniform(0.0, 15.0)) / np.linalg.norm(spin)
     floor = ("{type: box, size: [4, 1, 4]}" if seed % 4 < 2 else
@@ -431,8 +429,6 @@ def test_a_tumbling_hull_landing_in_stepped_mode_does_not_sink(seed, tmp_path):
             f"  - {{name: h, mass: {float(rng.uniform(0.2, 5.0))!r}, position: [0, {y0!r}, 0], "
             f"orientation: {[float(c) for c in q]}, angular_velocity: {spin.tolist()}, "
             f"shape: {{type: mesh, file: h.obj}}, collision: {{geometry: hull}}, {material}}}\n")
-    from vrsim_cli.maths.spatial import quat_to_matrix
-
     model, states, _ = simulate(text, tmp_path)
     lowest = min(float((s.body_pos[1] + local @ quat_to_matrix(s.body_quat[1]).T)[:, 1].min())
                  for s in states)

@@ -61,8 +61,8 @@ KEEP = 4  # contacts kept of a tilted cap or a face (as box_box and plane_cylind
 # ... and of a pair with a hull: its faces may have more corners than 4, and 4 of a
 # hexagon picked by farthest points can leave the centre of mass outside them (a hull
 # resting 45 mm inside its 6-cornered base rocked and walked 0.5 mm/s on a static box;
-# a tumbling prism's sixth cap corner, left out, sank 2.3 mm in stepped mode). As a hull
-# lying flat on a plane (narrowphase.FACE_KEEP).
+# a tumbling prism's sixth cap corner, left out, sank 2.3 mm in stepped mode); also the
+# corners kept of a hull's face lying flat on a plane (narrowphase.plane_vertices)
 HULL_KEEP = 8
 ALIGN_COS = 1.0 - 5e-5  # a face within ~0.01 rad of the normal is the reference face
 PARALLEL_COS = 1.0 - 1e-12  # axes this close are parallel (two lying cylinders)
@@ -186,6 +186,11 @@ def _pairs(cm, world, ia, ib, margin):
     return _joined(out)
 
 
+def world_vertices(cm, world, g):
+    """The vertices (k, 3) of hull or mesh geom g where `world` puts it."""
+    return world.pos[g] + matmul(cm.geom_vertices[g], world.rot[g].T)
+
+
 def hull(cm, g) -> Facets:
     """The facets of convex hull geom g (cached by its vertex array, as fcl's geometry)."""
     key = ("facets", id(cm.geom_vertices[g]))
@@ -194,28 +199,12 @@ def hull(cm, g) -> Facets:
     return cm.cache[key]
 
 
-def _support(cm, world, g, d):
-    """How far (m) geom g (box, cylinder, capsule or hull) reaches from its centre along
-    unit direction d: max over its points x of d . (x - centre)."""
-    R = world.rot[g]
-    kind = cm.geom_type[g]
-    if kind == BOX:
-        return dot(np.abs(matmul(R.T, d)), world.half[g])
-    if kind == CONVEX:
-        return float(matmul(cm.geom_vertices[g], matmul(R.T, d)).max())
-    along = abs(dot(R[:, 1], d))
-    if kind == CAPSULE:
-        return world.half[g][1] * along + cm.geom_radius[g]
-    return world.half[g][1] * along + cm.geom_radius[g] * math.sqrt(max(0.0, 1.0 - along * along))
-
-
 def separation(cm, world, a, b, d):
     """How far apart (m; negative: overlapping) geoms a and b are along unit direction d
     (from a to b): the gap between their projections, exact for these shapes. No
     direction separates them more than the contact normal does (the separating-axis
     theorem for convex shapes)."""
-    return dot(world.pos[b] - world.pos[a], d) - _support(cm, world, a, d) - \
-        _support(cm, world, b, -d)
+    return float(_separations(cm, world, a, b, np.asarray(d, float)[None])[0])
 
 
 def _face_normals(cm, world, g, centre):
@@ -244,10 +233,7 @@ def face_axis(cm, world, a, b):
     for g, sign in ((a, 1.0), (b, -1.0)):
         dirs = [sign * d for d in _face_normals(cm, world, g, sign * centre)]  # a to b
         rows = np.array(dirs).reshape(-1, 3)
-        if cm.geom_type[g] == CONVEX:  # many facets: their separations at once
-            gaps = _separations(cm, world, a, b, rows).tolist()
-        else:
-            gaps = [separation(cm, world, a, b, d) for d in dirs]
+        gaps = _separations(cm, world, a, b, rows).tolist()  # a hull's facets at once
         for d, gap, (x, y, z) in zip(dirs, gaps, rows.tolist()):
             # of two axes within ALIGN_COS of each other, the first (a's): two nearly
             # parallel caps swapped the normal with every wobble, and stepped mode's warm
@@ -264,14 +250,15 @@ def face_axis(cm, world, a, b):
 
 
 def _separations(cm, world, a, b, D):
-    """`separation` along each row of D (k, 3) (unit, from a to b), vectorised: a hull's
+    """`separation` along each row of D (k, 3) (unit, from a to b) at once: a hull's
     facets are hundreds (an icosphere's 1280 took 45 ms per pair and step one by one)."""
     return matmul(D, world.pos[b] - world.pos[a]) - _supports(cm, world, a, D) - \
         _supports(cm, world, b, -D)
 
 
 def _supports(cm, world, g, D):
-    """`_support` along each row of D (k, 3)."""
+    """How far (m) geom g (box, cylinder, capsule or hull) reaches from its centre along
+    each unit row d of D (k, 3): max over its points x of d . (x - centre)."""
     R = world.rot[g]
     kind = cm.geom_type[g]
     local = matmul(D, R)  # rows: R^T d
@@ -455,8 +442,7 @@ def manifold(cm, world, a, b, n0, depth0, margin):
         # tumbling hull's vertex on a neighbouring face can reach the face within the
         # step (stepped mode's margin is the step's travel): left out, a prism's corner
         # 2.2 mm above a box sank 2.3 mm, a spinning hull's 37 mm above it 4.4 mm
-        v = world.pos[inc] + matmul(np.asarray(cm.geom_vertices[inc], float),
-                                    world.rot[inc].T)
+        v = world_vertices(cm, world, inc)
         over = dot(nf, verts[0]) - matmul(v, nf) >= -margin
         for s_, o_ in planes:
             over &= matmul(v, s_) <= o_

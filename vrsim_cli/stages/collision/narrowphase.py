@@ -236,19 +236,16 @@ def _plane_cylinder(cm, world, ia, ib, margin):
     return _deepest(np.arange(len(ia)), points, depth, n, margin)
 
 
-FACE_KEEP = 8  # vertices of a hull's face lying flat on a plane kept as its contacts
-
-
 def plane_vertices(cm, world, ia, ib, margin):
     """Half-space against the vertices of a convex hull or mesh: the 4 deepest. A hull
     whose face lies flat on the plane (within FLAT_COS) touches it with that face: its
-    corners (at most FACE_KEEP of them, well spread, fixed in the body) and its deepest
-    vertex besides. (The 4 deepest of a hexagon lying flat were picked by round-off,
-    other ones every step, and could all lie on one side of the centre of mass: a prism
-    on the ground rocked and slid at 2 mm/s.)"""
+    corners (at most cylinder_pairs.HULL_KEEP of them, well spread, fixed in the body)
+    and its deepest vertex besides. (The 4 deepest of a hexagon lying flat were picked
+    by round-off, other ones every step, and could all lie on one side of the centre of
+    mass: a prism on the ground rocked and slid at 2 mm/s.)"""
     out = []
     for p, (a, b) in enumerate(zip(ia.tolist(), ib.tolist())):
-        v = world.pos[b] + matmul(cm.geom_vertices[b], world.rot[b].T)
+        v = cylinder_pairs.world_vertices(cm, world, b)
         n = cm.geom_plane_normal[a]
         depth = cm.geom_plane_offset[a] - matmul(v, n)
         face = _flat_face(cm, world, b, n) if cm.geom_type[b] == CONVEX else None
@@ -266,9 +263,9 @@ def plane_vertices(cm, world, ia, ib, margin):
 
 
 def _flat_face(cm, world, g, n):
-    """The corners (vertex indices, at most FACE_KEEP, in the face's order) of hull g's
-    face lying flat against the plane with normal n (its outward normal within FLAT_COS
-    of -n), or None."""
+    """The corners (vertex indices, at most cylinder_pairs.HULL_KEEP, in the face's
+    order) of hull g's face lying flat against the plane with normal n (its outward
+    normal within FLAT_COS of -n), or None."""
     f = cylinder_pairs.hull(cm, g)
     along = matmul(f.normals, matmul(world.rot[g].T, -np.asarray(n, float)))
     k = int(np.argmax(along))
@@ -278,7 +275,8 @@ def _flat_face(cm, world, g, n):
     if key not in cm.cache:
         loop = f.loops[k]
         corners = np.asarray(cm.geom_vertices[g], float)[loop]
-        cm.cache[key] = loop[reduce_manifold(corners, np.zeros(len(loop)), FACE_KEEP)]
+        cm.cache[key] = loop[reduce_manifold(corners, np.zeros(len(loop)),
+                                              cylinder_pairs.HULL_KEEP)]
     return cm.cache[key]
 
 
