@@ -181,6 +181,53 @@ def test_vrsim_stack_row_stands_still():
     assert row.wall_s > 0 and "1/60 s" in row.setting
     assert (stepped.bodies, stepped.steps) == (10, 12) and "stepped" in stepped.setting
     assert stepped.sanity["drift_m"] < 1e-6 and stepped.sanity["tilt_rad"] < 1e-6
+    assert row.simulated_s == stepped.simulated_s == pytest.approx(0.2, rel=1e-12)
+    # coarser steps in stepped mode only (the located default costs ~16 ms a step)
+    rows = bench.vrsim_stack(0.2, (1 / 60,), 1, (1 / 10,))
+    assert len(rows) == 3 and "stepped" in rows[2].setting and "1/10 s" in rows[2].setting
+    assert rows[2].steps == 2 and rows[2].simulated_s == pytest.approx(0.2, rel=1e-12)
+
+
+def test_stack_frontier_compares_wall_per_simulated_second_at_100_times_less_drift():
+    """Hand-made rows, the expected figures worked out by hand: each peer row against
+    vrsim's cheapest row that drifts at most 1/100 as much, per simulated second, and
+    against vrsim's stepped row at the same step, per step."""
+    def row(engine, setting, steps, dt, wall, drift):
+        return Row("stack", engine, setting, 10, steps, wall, {"drift_m": drift},
+                   steps * dt)
+
+    fine = row("vrsim", "dt = 1/60 s, stepped", 300, 1 / 60, 0.018, 1e-14)  # 3.6 ms/s
+    coarse = row("vrsim", "dt = 1/5 s, stepped", 25, 1 / 5, 0.0015, 1e-3)  # 0.3 ms/s
+    located = row("vrsim", "dt = 1/60 s, defaults", 300, 1 / 60, 5.0, 1e-16)  # 1000 ms/s
+    peers = [row("mujoco", "dt = 1/60 s", 300, 1 / 60, 0.012, 3.6e-3),  # 2.4 ms/s
+             row("mujoco", "dt = 1/5 s", 25, 1 / 5, 0.00125, 1.3),  # 0.25 ms/s
+             row("pybullet", "dt = 1/240 s", 1200, 1 / 240, 0.05, 0.0)]  # 10 ms/s; none <= 0
+    untimed = Row("stack", "mujoco", "no simulated time", 10, 300, 0.01, {"drift_m": 1.0})
+    got = report.stack_frontier([fine, coarse, located, *peers, untimed])
+    assert [e["setting"] for e in got] == ["dt = 1/60 s", "dt = 1/5 s", "dt = 1/240 s"]
+    at_60, at_5, exact = got
+    # drift bound 3.6e-5 m: the fine and the located rows qualify, the fine one is cheaper
+    assert at_60["vrsim_setting"] == "dt = 1/60 s, stepped"
+    assert at_60["ms_per_simulated_s"] == pytest.approx(2.4)
+    assert at_60["vrsim_ms_per_simulated_s"] == pytest.approx(3.6)
+    assert at_60["vrsim_over_peer"] == pytest.approx(1.5)
+    assert at_60["same_dt_vrsim_over_peer"] == pytest.approx(0.06 / 0.04)
+    assert at_60["dt_s"] == pytest.approx(1 / 60, rel=1e-11)
+    # bound 1.3e-2 m: every vrsim row qualifies; the coarse one is the cheapest
+    assert at_5["vrsim_setting"] == "dt = 1/5 s, stepped"
+    assert at_5["vrsim_over_peer"] == pytest.approx(0.3 / 0.25)
+    assert at_5["same_dt_vrsim_over_peer"] == pytest.approx(0.06 / 0.05)
+    # a peer that does not drift at all: no vrsim row drifts 100 x less; no stepped row
+    # at its step
+    assert "vrsim_over_peer" not in exact and "same_dt_vrsim_over_peer" not in exact
+    text = "\n".join(report.stack_markdown(report.problems()["stack"],
+                                           [fine, coarse, located, *peers]))
+    assert ("| mujoco | 1/60 s | 3.60e-03 | 2.400 | dt = 1/60 s, stepped | 1.00e-14 | "
+            "3.600 | 1.5 | 1.5 |") in text
+    assert "| pybullet | 1/240 s | 0.00e+00 | 10.000 | - | - | - | none | - |" in text
+    data = json.loads(report.to_json(Results([], [fine, *peers])))
+    assert data["stack_frontier"][0]["vrsim_over_peer"] == pytest.approx(1.5)
+    assert data["throughput"][0]["simulated_s"] == pytest.approx(5.0)
 
 
 def test_throughput_rows_and_their_report():

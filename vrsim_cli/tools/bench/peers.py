@@ -52,10 +52,11 @@ MUJOCO_BOUNCE_TIMECONSTS = (20, 100, 400)
 MUJOCO_BOUNCE_DTS = {"full": (2e-3, 1e-3, 5e-4), "quick": (2e-3, 1e-3)}
 MUJOCO_DZHANIBEKOV_DTS = {"full": (1e-2, 5e-3, 2.5e-3, 1e-3, 5e-4, 2.5e-4),
                           "quick": (1e-2, 5e-3, 2.5e-3, 1e-3)}
-MUJOCO_STACK_DTS = {"full": (1 / 60, 1 / 240, 0.002), "quick": (1 / 60,)}
+MUJOCO_STACK_DTS = {"full": (1 / 5, 1 / 10, 1 / 15, 1 / 30, 1 / 60, 1 / 240, 0.002),
+                    "quick": (1 / 15, 1 / 60)}
 PYBULLET_BOUNCE_DTS = {"full": (1 / 60, 1 / 240, 1e-3), "quick": (1 / 60, 1 / 240)}
 PYBULLET_DZHANIBEKOV_DTS = {"full": (1 / 240, 1e-3, 2.5e-4), "quick": (1 / 240, 1e-3)}
-PYBULLET_STACK_DTS = {"full": (1 / 60, 1 / 240), "quick": (1 / 60,)}
+PYBULLET_STACK_DTS = {"full": (1 / 15, 1 / 30, 1 / 60, 1 / 240), "quick": (1 / 60,)}
 
 
 def available(engine: str) -> bool:
@@ -215,7 +216,8 @@ def mujoco_stack(quick, repeats):
         pos0 = (0.0, 0.0, (s["boxes"] - 0.5) * s["size"])
         rows.append(Row("stack", "mujoco", f"Euler, dt = {dt_label(dt)}, {duration:g} s, "
                         "defaults (Newton, pyramidal, solref 0.02 1)", s["boxes"], steps,
-                        wall, stack_sanity(pos0, qpos[:3], quat_to_matrix(qpos[3:]))))
+                        wall, stack_sanity(pos0, qpos[:3], quat_to_matrix(qpos[3:])),
+                        steps * dt))
     return rows
 
 
@@ -403,5 +405,5 @@ def pybullet_stack(quick, repeats):
             sim.close()
         rows.append(Row("stack", "pybullet", f"semi-implicit Euler, dt = {dt_label(dt)}, "
                         f"{duration:g} s, 50 solver iterations (default)", s["boxes"], steps,
-                        wall, stack_sanity(starts[-1], pos, R)))
+                        wall, stack_sanity(starts[-1], pos, R), steps * dt))
     return rows

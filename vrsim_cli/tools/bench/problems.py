@@ -71,6 +71,7 @@ class Row:
     steps: int
     wall_s: float  # best of the timed repeats, stepping only (all steps)
     sanity: dict = field(default_factory=dict)  # e.g. drift_m, tilt_rad, energy_ratio
+    simulated_s: float = 0.0  # s of simulated time (0: not given); the stack's frontier
 
     @staticmethod
     def of(item) -> "Row":
@@ -80,7 +81,8 @@ class Row:
             return item
         return Row(**{name: item[name] for name in ("problem", "engine", "setting",
                                                      "bodies", "steps", "wall_s")},
-                   sanity=dict(item.get("sanity", {})))
+                   sanity=dict(item.get("sanity", {})),
+                   simulated_s=float(item.get("simulated_s", 0.0)))
 
     @property
     def ms_per_step(self) -> float:
@@ -446,9 +448,13 @@ bodies: [{{name: box, mass: {d['mass']}, shape: {{type: box, size: {list(d['size
 # ----------------------------------------------------------------------------- stack
 
 # Ten 1 kg unit cubes on the ground (scenarios/stack.yaml without the heavy/slab pair).
+# "dts": both modes; "coarse_dts": the compiled stepped mode also at coarser steps, for
+# the work-precision frontier (`report.stack_frontier`: wall per simulated second at a
+# drift 100 x smaller than each peer setting's); the peers sweep the same coarse steps.
 STACK = {"boxes": 10, "size": 1.0, "mass": 1.0, "friction": 0.5, "g": 9.81,
          "duration": 5.0, "quick_duration": 0.5,
-         "dts": (1 / 60, 1 / 240), "quick_dts": (1 / 60,)}
+         "dts": (1 / 60, 1 / 240), "quick_dts": (1 / 60,),
+         "coarse_dts": (1 / 5, 1 / 10, 1 / 15, 1 / 30), "quick_coarse_dts": (1 / 15,)}
 
 
 def stack_sanity(pos0, pos, R) -> dict:
@@ -464,12 +470,14 @@ def dt_label(dt: float) -> str:
 
 def _vrsim_stack(quick, repeats):
     return vrsim_stack(STACK["quick_duration"] if quick else STACK["duration"],
-                       sweep(quick, STACK), repeats)
+                       sweep(quick, STACK), repeats,
+                       STACK["quick_coarse_dts" if quick else "coarse_dts"])
 
 
-def vrsim_stack(duration, dts, repeats):
+def vrsim_stack(duration, dts, repeats, coarse_dts=()):
     """vrsim's defaults for resting contact (4 velocity iterations, 2 position passes,
-    shock propagation, friction 0.5), verlet as in scenarios/stack.yaml."""
+    shock propagation, friction 0.5), verlet as in scenarios/stack.yaml; the compiled
+    stepped mode also at `coarse_dts` (the located default costs ~16 ms a step here)."""
     from vrsim_cli.maths.spatial import quat_to_matrix
 
     s = STACK
@@ -483,7 +491,9 @@ def vrsim_stack(duration, dts, repeats):
     settings = (("{}", "defaults (4 iterations, shock propagation)"),
                 ("{impacts: stepped}", "stepped impacts (compiled, 8 iterations, shock "
                                        "propagation)"))
-    for (collision, label), dt in ((c, dt) for c in settings for dt in dts):
+    plan = [(c, dt) for c in settings for dt in dts] + \
+        [(settings[1], dt) for dt in coarse_dts]
+    for (collision, label), dt in plan:
         model = _model("stack", duration, dt, "verlet", (0, -s["g"], 0), f"""
 collision: {collision}
 bodies:
@@ -495,5 +505,6 @@ bodies:
         rows.append(Row("stack", "vrsim", f"verlet, dt = {dt_label(dt)}, {duration:g} s, "
                         f"{label}", s["boxes"], result.state.step, wall,
                         stack_sanity(model.body_pos0[top], result.state.body_pos[top],
-                                     quat_to_matrix(result.state.body_quat[top]))))
+                                     quat_to_matrix(result.state.body_quat[top])),
+                        result.state.step * dt))
     return rows

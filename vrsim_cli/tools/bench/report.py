@@ -20,7 +20,7 @@ from vrsim_cli.tools.bench import peers as bench_peers
 from vrsim_cli.tools.bench import spheres as bench_spheres
 from vrsim_cli.tools.bench.problems import (REPEAT_BUDGET_S, Point, Problem, Results, Row,
                                             _vrsim_bounce, _vrsim_dzhanibekov,
-                                            _vrsim_projectile, _vrsim_stack,
+                                            _vrsim_projectile, _vrsim_stack, dt_label,
                                             throughput_table)
 
 __all__ = ["REPEAT_BUDGET_S", "markdown", "plot", "problems", "run_bench", "summary",
@@ -76,12 +76,15 @@ def problems() -> dict[str, Problem]:
         Problem(
             name="stack",
             description="ten 1 kg unit cubes stacked on a ground plane, friction 0.5, "
-                        "5 s (--quick: 0.5 s)",
+                        "5 s (--quick: 0.5 s); each engine also at coarser steps (1/5 ... "
+                        "1/30 s; --quick: 1/15 s) for the wall per simulated second at "
+                        "matched drift",
             truth="the top box's drift |p(T) - p(0)| in m and tilt in rad (both 0 for a "
                   "stack at rest)",
             kind="throughput",
             runners={"vrsim": _vrsim_stack, "mujoco": bench_peers.mujoco_stack,
-                     "pybullet": bench_peers.pybullet_stack}),
+                     "pybullet": bench_peers.pybullet_stack},
+            section=stack_markdown),
         Problem(
             name=bench_free.PROBLEM,
             description="N = 1, 10, 100, 1000, 10000 (--quick: 1, 10, 100) free bodies, "
@@ -232,6 +235,64 @@ def throughput_markdown(problem: Problem, rows: list[Row]) -> list[str]:
     return lines + [""]
 
 
+FRONTIER_FACTOR = 100.0  # issue 15's stack target: at a drift at least 100 x smaller
+
+
+def stack_frontier(rows: list[Row], factor: float = FRONTIER_FACTOR) -> list[dict]:
+    """Wall time per simulated second at matched accuracy: for each peer row of the stack
+    (one engine and step), vrsim's cheapest row whose top-box drift is at most 1/factor
+    of the peer's, and the ratio of the two walls per simulated second (vrsim / peer
+    <= 1: vrsim is as fast or faster with `factor` x less drift); `same_dt`: vrsim's
+    stepped row at the peer's step, if any, and the ratio of wall per step there."""
+    stack = [r for r in rows if r.problem == "stack" and r.simulated_s > 0.0]
+    mine = [r for r in stack if r.engine == "vrsim"]
+    out = []
+    for peer in (r for r in stack if r.engine != "vrsim"):
+        entry = {"engine": peer.engine, "setting": peer.setting, "dt_s": _dt_of(peer),
+                 "drift_m": peer.sanity["drift_m"],
+                 "ms_per_simulated_s": 1e3 * peer.wall_s / peer.simulated_s}
+        fit = [r for r in mine if r.sanity["drift_m"] <= peer.sanity["drift_m"] / factor]
+        if fit:
+            best = min(fit, key=lambda r: r.wall_s / r.simulated_s)
+            entry.update(vrsim_setting=best.setting, vrsim_drift_m=best.sanity["drift_m"],
+                         vrsim_ms_per_simulated_s=1e3 * best.wall_s / best.simulated_s)
+            entry["vrsim_over_peer"] = entry["vrsim_ms_per_simulated_s"] / \
+                entry["ms_per_simulated_s"]
+        same = [r for r in mine if "stepped" in r.setting and _dt_of(r) == entry["dt_s"]]
+        if same:
+            entry["same_dt_vrsim_over_peer"] = same[0].ms_per_step / peer.ms_per_step
+        out.append(entry)
+    return out
+
+
+def _dt_of(row: Row) -> float:
+    """A stack row's step (s): its simulated time over its steps, to 1e-12 relative."""
+    return float(f"{row.simulated_s / row.steps:.12g}")
+
+
+def stack_markdown(problem: Problem, rows: list[Row]) -> list[str]:
+    lines = throughput_markdown(problem, rows)
+    frontier = stack_frontier(rows)
+    if not frontier:
+        return lines
+    lines += [f"Wall time per simulated second at a drift at least {FRONTIER_FACTOR:g} x "
+              "smaller: each peer setting against vrsim's cheapest setting that drifts "
+              f"at most 1/{FRONTIER_FACTOR:g} as much (vrsim / engine <= 1: vrsim is as "
+              "fast or faster); and vrsim's stepped mode at the same step, per step:", "",
+              "| engine | dt | drift (m) | ms per simulated s | vrsim's cheapest within "
+              "1/100 the drift | its drift (m) | its ms per simulated s | vrsim / engine | "
+              "same dt: vrsim / engine per step |", "|---|---|---|---|---|---|---|---|---|"]
+    for e in frontier:
+        mine = ("-", "-", "-", "none") if "vrsim_over_peer" not in e else (
+            e["vrsim_setting"], f"{e['vrsim_drift_m']:.2e}",
+            f"{e['vrsim_ms_per_simulated_s']:.3f}", f"{e['vrsim_over_peer']:.3g}")
+        same = f"{e['same_dt_vrsim_over_peer']:.3g}" if "same_dt_vrsim_over_peer" in e \
+            else "-"
+        lines.append(f"| {e['engine']} | {dt_label(e['dt_s'])} | {e['drift_m']:.2e} | "
+                     f"{e['ms_per_simulated_s']:.3f} | " + " | ".join(mine) + f" | {same} |")
+    return lines + [""]
+
+
 def plot(results: Results, folder: Path) -> list[Path]:
     """Work-precision plots (log-log error vs wall time, one curve per engine and method)
     and, per throughput problem, a bar chart of body-steps/s per engine and setting."""
@@ -288,6 +349,7 @@ def to_json(results: Results) -> str:
     return json.dumps({"machine": machine(), "points": [asdict(p) for p in results.points],
                        "summary": summary(results.points), "throughput": rows,
                        "throughput_summary": throughput_summary(results.rows),
+                       "stack_frontier": stack_frontier(results.rows),
                        "free_bodies": bench_free.ratios(
                            [r for r in results.rows if r.problem == bench_free.PROBLEM])},
                       indent=2)
