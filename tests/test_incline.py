@@ -37,11 +37,12 @@ EVERY = ("euler", "symplectic-euler", "verlet", "rk4", "dopri5")
 
 
 def box_on_slope(rng, th, yaw, size, mu, collision="{}", integrators=EXACT,
-                 steps=(0.01, 1 / 60)):
+                 steps=(0.01, 1 / 60), duration=5.0, slope="plane"):
     """(start position (3,) m, orientation quaternion, sampled states) of a box of `size`
     at rest on a plane tilted by th about z, turned by yaw about the plane's normal, for
-    5 s; mass, dt (from `steps`, s) and integrator (from `integrators`) drawn from rng.
-    `collision`: the scene's collision block (YAML flow)."""
+    `duration` s (5); mass, dt (from `steps`, s) and integrator (from `integrators`) drawn
+    from rng. `collision`: the scene's collision block (YAML flow). `slope`: "plane", or
+    "box": a static 40 m slab whose top face is that plane."""
     mass = float(rng.uniform(0.2, 10.0))
     dt = float(rng.choice(steps))
     integrator = str(rng.choice(integrators))
@@ -49,17 +50,25 @@ def box_on_slope(rng, th, yaw, size, mu, collision="{}", integrators=EXACT,
     position = np.array([0.5 * size[1] * x for x in normal])
     q = quat_mul([math.cos(th / 2), 0.0, 0.0, math.sin(th / 2)],
                  [math.cos(yaw / 2), 0.0, math.sin(yaw / 2), 0.0])
+    if slope == "plane":
+        ground = (f"{{name: slope, type: static, shape: {{type: plane, normal: {normal}}},\n"
+                  f"     material: {{friction: {mu!r}}}}}")
+    else:
+        centre = [-0.25 * x for x in normal]  # 0.5 m thick: its top face through 0
+        tilt = [math.cos(th / 2), 0.0, 0.0, math.sin(th / 2)]
+        ground = (f"{{name: slope, type: static, position: {centre}, orientation: {tilt},\n"
+                  f"     shape: {{type: box, size: [40, 0.5, 40]}}, material: "
+                  f"{{friction: {mu!r}}}}}")
     _, states, _ = simulate(f"""
 vrsim: 1
-duration: 5.0
+duration: {duration!r}
 frame_rate: 10
 dt: {dt!r}
 integrator: {integrator}
 gravity: [0, -9.81, 0]
 collision: {collision}
 bodies:
-  - {{name: slope, type: static, shape: {{type: plane, normal: {normal}}},
-     material: {{friction: {mu!r}}}}}
+  - {ground}
   - {{name: box, mass: {mass!r}, position: {position.tolist()}, orientation: {q},
      shape: {{type: box, size: {size}}}, material: {{friction: {mu!r}}}}}
 """)
@@ -144,6 +153,40 @@ def test_a_sliding_box_accelerates_at_g_sin_minus_mu_cos_without_turning(seed):
         worst_turn = max(worst_turn, turned(q, s.body_quat[1]))
     assert worst_x <= 1e-6 and worst_v <= 1e-6, (theta, mu, worst_x, worst_v)
     assert worst_turn <= 1e-6, (theta, mu, worst_turn)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_a_box_just_steeper_than_its_friction_angle_slides_from_the_first_step(seed):
+    """The class of the audit's case (a box on a 41 degree slope at mu = 0.81, verlet at
+    dt 1/140 s: it stayed put for 0.1 s, then spun at 0.11 rad/s and crept for 0.7 s):
+    mu = 0.85-0.99 tan(th), so the slip after a step is small against what the friction
+    impulse changes; slope 5-60 degrees, a plane or a static box's face, dt 3-8 ms,
+    verlet or rk4, any size (not tipping) and turn about the normal, from rest: over 1 s
+    the same closed form as the sliding test above, to 1e-6 relative, turn <= 1e-6 rad.
+    Before solver.SLIDE_TURN (slip directions settled to 1e-14) 5 of these 8 failed."""
+    rng = np.random.default_rng(700 + seed)
+    while True:
+        theta = float(rng.uniform(5.0, 60.0))
+        th = math.radians(theta)
+        mu = float(rng.uniform(0.85, 0.99) * math.tan(th))
+        size = [float(x) for x in rng.uniform(0.1, 0.8, 3)]
+        yaw = float(rng.uniform(0.0, 2 * math.pi))
+        chord = min(0.5 * size[0] / max(abs(math.cos(yaw)), 1e-12),
+                    0.5 * size[2] / max(abs(math.sin(yaw)), 1e-12))
+        if 0.5 * size[1] * mu < 0.8 * chord:
+            break
+    slope = ("plane", "box")[seed % 2]
+    position, q, states = box_on_slope(rng, th, yaw, size, mu, duration=1.0, slope=slope,
+                                       steps=(1 / 120, 1 / 140, 1 / 200, 1 / 250, 1 / 333))
+    a = 9.81 * (math.sin(th) - mu * math.cos(th))
+    down = np.array([-math.cos(th), -math.sin(th), 0.0])
+    worst_x = worst_turn = 0.0
+    for s in states[1:]:
+        t = s.t
+        worst_x = max(worst_x, float(np.linalg.norm(s.body_pos[1] - position - 0.5 * a * t * t
+                                                    * down)) / (0.5 * a * t * t))
+        worst_turn = max(worst_turn, turned(q, s.body_quat[1]))
+    assert worst_x <= 1e-6 and worst_turn <= 1e-6, (theta, mu, slope, worst_x, worst_turn)
 
 
 def test_a_fast_sliding_box_costs_a_few_gap_evaluations_per_step(monkeypatch):

@@ -113,21 +113,10 @@ def test_a_body_the_contacts_can_hold_stays_at_rest(integrator, dt, eps):
 @pytest.mark.parametrize("dt", DTS, ids=["10ms", "60Hz", "30Hz"])
 @pytest.mark.parametrize("integrator", INTEGRATORS)
 @pytest.mark.parametrize("kind", ["sphere", "capsule", "cylinder"])
-def test_a_rolling_body_makes_no_impacts(kind, integrator, dt, eps, request):
+def test_a_rolling_body_makes_no_impacts(kind, integrator, dt, eps):
     """Truth 2: a sphere, or a capsule or a cylinder on its side, rolling at 0.5-2 m/s
     along a random horizontal direction (radius 0.05-0.4 m), for 0.5 s. (eps 0 cannot
     hop: no restitution.) A cylinder touches the plane at its caps' rims."""
-    if (kind, integrator, dt) == ("cylinder", "euler", 0.01):
-        request.applymarker(pytest.mark.xfail(strict=True, reason=(
-            "a cylinder rolling on its rims under euler at dt 10 ms moves vertically at "
-            "5e-5 m/s at t = 0.08 s (no impact event; 1/60 and 1/30 s pass; on 8ad2045 11 "
-            "of these 30 cases failed, on dfa9486 8)")))
-    if (kind, integrator, dt, eps) == ("cylinder", "verlet", 1 / 30, 0.5):
-        request.applymarker(pytest.mark.xfail(strict=True, reason=(
-            "at t = 0.2 s the rims' block solve does not settle; its rounds ended on both "
-            "rims 'sticking' while they slipped at 0.21 and 0.53 m/s, which was accepted "
-            "until 2026-12-04 (solver._admissible, stuck) and is now refused; the projected "
-            "sweeps that answer instead leave v_y = 2.4e-6 m/s for that step")))
     index = INTEGRATORS.index(integrator) * 6 + DTS.index(dt) * 2 + int(eps == 1.0)
     rng = np.random.default_rng(1000 + index + 100 * ["sphere", "capsule",
                                                       "cylinder"].index(kind))
