@@ -94,15 +94,15 @@ def draw_holding(seed):
     return rng, theta, th, yaw, size, mu
 
 
-def draw_sliding(seed):
+def draw_sliding(seed, base=100, share=(0.0, 0.95)):
     """(rng, slope deg, slope rad, yaw rad, size (3,) m, mu) of a box that slides: slope
-    5-60 degrees, mu in [0, 0.95 tan(th)), not so tall that the centre of pressure,
-    mu h / 2 down the slip line, leaves the footprint."""
-    rng = np.random.default_rng(100 + seed)
+    5-60 degrees, mu in [share[0], share[1]) tan(th) (rng seeded base + seed), not so tall
+    that the centre of pressure, mu h / 2 down the slip line, leaves the footprint."""
+    rng = np.random.default_rng(base + seed)
     while True:
         theta = float(rng.uniform(5.0, 60.0))
         th = math.radians(theta)
-        mu = float(rng.uniform(0.0, 0.95) * math.tan(th))
+        mu = float(rng.uniform(*share) * math.tan(th))
         size = [float(x) for x in rng.uniform(0.1, 0.8, 3)]
         yaw = float(rng.uniform(0.0, 2 * math.pi))
         # half the footprint's chord along the slip line through the centre
@@ -142,6 +142,14 @@ def test_a_sliding_box_accelerates_at_g_sin_minus_mu_cos_without_turning(seed):
     both to 1e-6 relative (the issue's bound), and the box turns by <= 1e-6 rad."""
     rng, theta, th, yaw, size, mu = draw_sliding(seed)
     position, q, states = box_on_slope(rng, th, yaw, size, mu)
+    worst_x, worst_v, worst_turn = slide_errors(th, mu, position, q, states)
+    assert worst_x <= 1e-6 and worst_v <= 1e-6, (theta, mu, worst_x, worst_v)
+    assert worst_turn <= 1e-6, (theta, mu, worst_turn)
+
+
+def slide_errors(th, mu, position, q, states):
+    """(position, velocity: largest relative error against x0 + a t^2 / 2 and a t down
+    the slope with a = g (sin th - mu cos th); the largest turn, rad) over the samples."""
     a = 9.81 * (math.sin(th) - mu * math.cos(th))
     down = np.array([-math.cos(th), -math.sin(th), 0.0])
     worst_x = worst_v = worst_turn = 0.0
@@ -151,8 +159,7 @@ def test_a_sliding_box_accelerates_at_g_sin_minus_mu_cos_without_turning(seed):
                                                     * down)) / (0.5 * a * t * t))
         worst_v = max(worst_v, float(np.linalg.norm(s.body_vel[1] - a * t * down)) / (a * t))
         worst_turn = max(worst_turn, turned(q, s.body_quat[1]))
-    assert worst_x <= 1e-6 and worst_v <= 1e-6, (theta, mu, worst_x, worst_v)
-    assert worst_turn <= 1e-6, (theta, mu, worst_turn)
+    return worst_x, worst_v, worst_turn
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -162,31 +169,15 @@ def test_a_box_just_steeper_than_its_friction_angle_slides_from_the_first_step(s
     mu = 0.85-0.99 tan(th), so the slip after a step is small against what the friction
     impulse changes; slope 5-60 degrees, a plane or a static box's face, dt 3-8 ms,
     verlet or rk4, any size (not tipping) and turn about the normal, from rest: over 1 s
-    the same closed form as the sliding test above, to 1e-6 relative, turn <= 1e-6 rad.
+    the same closed forms as the sliding test above, to 1e-6 relative, turn <= 1e-6 rad.
     Before solver.SLIDE_TURN (slip directions settled to 1e-14) 5 of these 8 failed."""
-    rng = np.random.default_rng(700 + seed)
-    while True:
-        theta = float(rng.uniform(5.0, 60.0))
-        th = math.radians(theta)
-        mu = float(rng.uniform(0.85, 0.99) * math.tan(th))
-        size = [float(x) for x in rng.uniform(0.1, 0.8, 3)]
-        yaw = float(rng.uniform(0.0, 2 * math.pi))
-        chord = min(0.5 * size[0] / max(abs(math.cos(yaw)), 1e-12),
-                    0.5 * size[2] / max(abs(math.sin(yaw)), 1e-12))
-        if 0.5 * size[1] * mu < 0.8 * chord:
-            break
+    rng, theta, th, yaw, size, mu = draw_sliding(seed, base=700, share=(0.85, 0.99))
     slope = ("plane", "box")[seed % 2]
     position, q, states = box_on_slope(rng, th, yaw, size, mu, duration=1.0, slope=slope,
                                        steps=(1 / 120, 1 / 140, 1 / 200, 1 / 250, 1 / 333))
-    a = 9.81 * (math.sin(th) - mu * math.cos(th))
-    down = np.array([-math.cos(th), -math.sin(th), 0.0])
-    worst_x = worst_turn = 0.0
-    for s in states[1:]:
-        t = s.t
-        worst_x = max(worst_x, float(np.linalg.norm(s.body_pos[1] - position - 0.5 * a * t * t
-                                                    * down)) / (0.5 * a * t * t))
-        worst_turn = max(worst_turn, turned(q, s.body_quat[1]))
-    assert worst_x <= 1e-6 and worst_turn <= 1e-6, (theta, mu, slope, worst_x, worst_turn)
+    worst_x, worst_v, worst_turn = slide_errors(th, mu, position, q, states)
+    assert worst_x <= 1e-6 and worst_v <= 1e-6 and worst_turn <= 1e-6, \
+        (theta, mu, slope, worst_x, worst_v, worst_turn)
 
 
 def test_a_fast_sliding_box_costs_a_few_gap_evaluations_per_step(monkeypatch):
