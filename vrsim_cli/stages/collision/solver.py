@@ -743,7 +743,8 @@ def _exact_resting(bodies: Bodies, c: ContactSet, target) -> np.ndarray:
     contacts (bodies may repeat). Unlike sequential impulses, the result does not depend
     on the order of the contacts: two contacts of a pair that are each other's mirror
     image get mirror impulses (the sweeps gave the first one more). Applied to bodies."""
-    lam, _ = _patch(_delassus(c, [0, 1, 2]), velocity_along(bodies, c), target, c.friction)
+    lam, _ = _patch(_delassus(c, [0, 1, 2]), velocity_along(bodies, c), target, c.friction,
+                    faces=_faces(c))
     _apply_all(bodies, c, lam, [0, 1, 2])
     return lam
 
@@ -968,7 +969,8 @@ def _patch_blocks(bodies: Bodies, blk, target, lam, start=None, kink=None) -> No
         old = lam[rows[mem]]
         pre = v_now[mem] - matmul(Ab, old.ravel()).reshape(-1, 3)
         new, slid = _patch(Ab, pre, target[mem], sub.friction[mem],
-                           None if v_start is None else v_start[mem, 1:], strict=True)
+                           None if v_start is None else v_start[mem, 1:], strict=True,
+                           faces=_faces(sub.take(mem)))
         if new is None:
             continue  # no solution against the frozen bodies: the iterations' stand
         delta = matmul(WJt[i][:, idx], (new - old).ravel())
@@ -1064,9 +1066,10 @@ PATCH_ROUNDS = 64  # active-set and slip-direction rounds of one body's patch so
 SLIDE_TURN = 1e-9
 
 
-def _rounds(A, pre, target, mu, active, slide, s, tol_v):
+def _rounds(A, pre, target, mu, active, slide, s, tol_v, faces=None):
     """`_patch`'s active-set rounds from the statuses (active, slide: (k,) bool; s: (k, 2)
-    slip directions). Returns (lam, active, slide, s, settled)."""
+    slip directions). faces: see `_spread_faces`. Returns (lam, active, slide, s,
+    settled)."""
     k = len(pre)
     active, slide, s = active.copy(), slide.copy(), s.copy()
     lam = np.zeros((k, 3))
@@ -1084,6 +1087,19 @@ def _rounds(A, pre, target, mu, active, slide, s, tol_v):
         tol_l = 1e-12 * (1.0 + float(np.abs(lam).max()))
         lt = np.sqrt((lam[:, 1:] ** 2).sum(1))
         over = active & ~slide & (mu > 0.0) & (lt > mu * lam[:, 0] + tol_l)
+        if over.any() and faces is not None:
+            spread, holds = _spread_faces(A, lam, mu, active & ~slide & (mu > 0.0), faces,
+                                          tol_v)
+            if spread is not None:  # the same motion with every point inside its cone
+                lam = spread
+                v = pre + matmul(A, lam.ravel()).reshape(k, 3)
+                lt = np.sqrt((lam[:, 1:] ** 2).sum(1))
+                over = active & ~slide & (mu > 0.0) & (lt > mu * lam[:, 0] + tol_l)
+            elif holds and (active & (lam[:, 0] < -tol_l)).any():
+                # faces whose friction is inside their cones, one point pulling: that
+                # point leaves first, then the face is spread again (a corner let slide
+                # first sent a held box sliding)
+                over[:] = False
         if over.any():
             for i in np.flatnonzero(over).tolist():
                 vt = pre[i, 1:]
@@ -1144,7 +1160,7 @@ def _rounds(A, pre, target, mu, active, slide, s, tol_v):
     return lam, active, slide, s, settled
 
 
-def _patch(A, pre, target, mu, slip0=None, strict=False):
+def _patch(A, pre, target, mu, slip0=None, strict=False, faces=None):
     """Impulses (k, 3) along (n, t1, t2) at the k contacts of one body with fixed (or
     frozen) bodies, normal and friction solved together: the relative velocity after is
     v = pre + A lam (A: (3k, 3k) Delassus matrix, pre: (k, 3) velocity without them), and
@@ -1175,7 +1191,8 @@ def _patch(A, pre, target, mu, slip0=None, strict=False):
     (the ball thrown sliding rolls from t* = 2 v0 / (7 mu g), inside a step).
 
     strict: when the statuses do not settle and the projected sweeps do not solve the
-    problem either (`_projected_sweeps`), return (None, None) instead of their impulses."""
+    problem either (`_projected_sweeps`), return (None, None) instead of their impulses.
+    faces: (dirs, pair) of the points (`_faces`), for `_spread_faces`; None: not tried."""
     k = len(pre)
     scale = 1.0 + float(np.abs(pre).max()) + float(np.abs(target).max())
     tol_v = PATCH_TOL * scale
@@ -1188,7 +1205,7 @@ def _patch(A, pre, target, mu, slip0=None, strict=False):
         return settled or _admissible(A, pre, target, lam, tol_v,
                                       active & ~slide & (mu > 0.0))
 
-    result = _rounds(A, pre, target, mu, active, slide, s, tol_v)
+    result = _rounds(A, pre, target, mu, active, slide, s, tol_v, faces)
     if not accepted(result):
         # again from the points that carry the frictionless problem (`_support`): all
         # the approaching points at once may ask for what no rigid motion does
@@ -1219,6 +1236,67 @@ def _patch(A, pre, target, mu, slip0=None, strict=False):
         return lam, None
     frac = float(np.min(np.where(ok, size0 / np.where(ok, size0 - end, 1.0), np.inf)))
     return lam, (frac, lam_slide)
+
+
+FACE_COS = 1.0 - 1e-12  # normals this close are one face's (`_spread_faces`)
+
+
+def _faces(c: ContactSet) -> tuple:
+    """(dirs, pair) of contacts c for `_spread_faces`: their world bases (k, 3, 3) and an
+    id of each one's pair of bodies (k,)."""
+    if not len(c):
+        return c.dirs, np.zeros(0, np.int64)
+    return c.dirs, c.a * (int(max(c.a.max(), c.b.max())) + 1) + c.b
+
+
+def _spread_faces(A, lam, mu, stick, faces, tol_v):
+    """(spread, holds): spread is lam (k, 3) along (n, t1, t2) with the friction of each
+    face's sticking points (the `stick` points of one pair of bodies with one normal)
+    spread over them in proportion to their normal impulses, if that leaves every
+    velocity as it was (A lam, to tol_v) and puts every such point inside its cone, else
+    None; holds: every such face's friction force is within mu times its pushing normal
+    impulses (the face could hold, whatever its split).
+
+    Why: a face held by friction is statically indeterminate; the minimum-norm solution
+    picks one split of its friction, which can put more on a lightly loaded corner than
+    its cone takes (7 times, a box held on a 36 degree slope at mu = 1.01 tan(th)). The
+    rounds then let that corner slide, cycled, and ended on a solution that slid and
+    turned the box (7 mm/s). Spread with the normal impulses, the friction's centre is
+    the normal impulses' centre, which for a face at rest lies on the line of the
+    friction force (the moment balance that holds it): the same force and torque, every
+    corner at the face's ratio |F_t| / N. Where the torque differs (a face that must stop
+    a turn) the velocities differ and the rounds go on as before."""
+    dirs, pair = faces
+    normal = dirs[:, 0]
+    new = lam.copy()
+    done = np.zeros(len(lam), bool)
+    holds, pulls = True, False
+    for i in np.flatnonzero(stick).tolist():
+        if done[i]:
+            continue
+        face = stick & (pair == pair[i]) & ((normal * normal[i]).sum(1) >= FACE_COS)
+        done |= face
+        members = np.flatnonzero(face)
+        force = (lam[members, 1:2] * dirs[members, 1] +
+                 lam[members, 2:3] * dirs[members, 2]).sum(0)  # world, N s
+        load = float(np.maximum(lam[members, 0], 0.0).sum())
+        holds = holds and float(np.sqrt(dot(force, force))) <= \
+            float(mu[members].min()) * load * (1.0 + 1e-12)
+        pulls = pulls or bool((lam[members, 0] < 0.0).any())
+        if len(members) < 2 or load <= 0.0:
+            continue
+        for j in members.tolist():
+            share = force * (lam[j, 0] / load)
+            new[j, 1] = dot(share, dirs[j, 1])
+            new[j, 2] = dot(share, dirs[j, 2])
+    if not holds or pulls or not done.any():
+        return None, holds
+    lt = np.sqrt((new[:, 1:] ** 2).sum(1))
+    if (stick & (lt > mu * new[:, 0] * (1.0 + 1e-12))).any():
+        return None, holds
+    if np.abs(matmul(A, (new - lam).ravel())).max() > tol_v:
+        return None, holds  # another torque: not the same motion
+    return new, holds
 
 
 SLIDE_LAW_SLIP = 1e-6  # m/s per m/s of the scale: a sticking point's slip beyond round-off
