@@ -1202,6 +1202,10 @@ def _patch(A, pre, target, mu, slip0=None, strict=False, faces=None):
 
     def accepted(rounds):  # settled, or a cycle's answer that may stand (`_admissible`)
         lam, active, slide, _, settled = rounds
+        if not settled and faces is not None and not _spread_faces(
+                A, lam, mu, active & (mu > 0.0), faces, tol_v)[1]:
+            return False  # a face with more friction than mu N: no solution (the sliding
+            # points counted in: a spinning box's cycle ended with a corner at 5.8 its cone)
         return settled or _admissible(A, pre, target, lam, tol_v,
                                       active & ~slide & (mu > 0.0))
 
