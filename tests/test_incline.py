@@ -139,16 +139,17 @@ def test_a_box_that_friction_can_hold_does_not_creep(seed):
 def test_a_box_friction_just_holds_does_not_creep_or_turn(seed):
     """mu = 1.001-1.05 tan(th) (the test above draws from 1.05 tan(th) + 0.02 up), slope
     5-60 degrees, a plane or a static box's face, any integrator, dt 1/333-1/30 s, any
-    size (not tipping) and turn about the normal, 1.5 s (the creep starts at the first
-    step): moves <= 1e-6 m and turns <= 1e-6 rad. The face is statically indeterminate: the minimum-norm split of its friction
-    put up to 7 times its cone on a lightly loaded corner, the rounds let that corner
-    slide and ended on a solution that slid (7 mm/s) and turned the box, in 3 of 40 such
-    boxes of a review (solver._spread_faces). Before it, 1 of these 10 failed."""
+    size (not tipping) and turn about the normal, 0.5 s (the creep starts at the first
+    step): moves <= 1e-6 m and turns <= 1e-6 rad. The face is statically indeterminate:
+    the minimum-norm split of its friction put up to 7 times its cone on a lightly
+    loaded corner, the rounds let that corner slide and ended on a solution that slid (7
+    mm/s) and turned the box, in 3 of 40 such boxes of a review (solver._spread_faces).
+    Before it, 1 of these 10 failed."""
     rng, theta, th, yaw, size, mu = draw_holding(seed, base=900, share=(1.001, 1.05))
     slope = ("plane", "box")[seed % 2]
     position, q, states = box_on_slope(rng, th, yaw, size, mu, integrators=EVERY,
                                        steps=(1 / 333, 1 / 200, 1 / 120, 0.01, 1 / 30),
-                                       duration=1.5, slope=slope)
+                                       duration=0.5, slope=slope)
     moved = max(float(np.linalg.norm(s.body_pos[1] - position)) for s in states)
     turn = max(turned(q, s.body_quat[1]) for s in states)
     assert moved <= 1e-6 and turn <= 1e-6, (theta, mu / math.tan(th), slope, moved, turn)
@@ -196,12 +197,12 @@ def test_a_box_just_steeper_than_its_friction_angle_slides_from_the_first_step(s
     dt 1/140 s: it stayed put for 0.1 s, then spun at 0.11 rad/s and crept for 0.7 s):
     mu = 0.85-0.99 tan(th), so the slip after a step is small against what the friction
     impulse changes; slope 5-60 degrees, a plane or a static box's face, dt 3-8 ms,
-    verlet or rk4, any size (not tipping) and turn about the normal, from rest: over 1 s
+    verlet or rk4, any size (not tipping) and turn about the normal, from rest: over 0.5 s
     the same closed forms as the sliding test above, to 1e-6 relative, turn <= 1e-6 rad.
     Before solver.SLIDE_TURN (slip directions settled to 1e-14) 5 of these 8 failed."""
     rng, theta, th, yaw, size, mu = draw_sliding(seed, base=700, share=(0.85, 0.99))
     slope = ("plane", "box")[seed % 2]
-    position, q, states = box_on_slope(rng, th, yaw, size, mu, duration=1.0, slope=slope,
+    position, q, states = box_on_slope(rng, th, yaw, size, mu, duration=0.5, slope=slope,
                                        steps=(1 / 120, 1 / 140, 1 / 200, 1 / 250, 1 / 333))
     worst_x, worst_v, worst_turn = slide_errors(th, mu, position, q, states)
     assert worst_x <= 1e-6 and worst_v <= 1e-6 and worst_turn <= 1e-6, \
