@@ -280,7 +280,7 @@ def stack_markdown(problem: Problem, rows: list[Row]) -> list[str]:
               f"at most 1/{FRONTIER_FACTOR:g} as much (vrsim / engine <= 1: vrsim is as "
               "fast or faster); and vrsim's stepped mode at the same step, per step:", "",
               "| engine | dt | drift (m) | ms per simulated s | vrsim's cheapest within "
-              "1/100 the drift | its drift (m) | its ms per simulated s | vrsim / engine | "
+              f"1/{FRONTIER_FACTOR:g} the drift | its drift (m) | its ms per simulated s | vrsim / engine | "
               "same dt: vrsim / engine per step |", "|---|---|---|---|---|---|---|---|---|"]
     for e in frontier:
         mine = ("-", "-", "-", "none") if "vrsim_over_peer" not in e else (
