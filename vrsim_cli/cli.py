@@ -27,8 +27,6 @@ from vrsim_cli.scene.spec import scene_schema
 INTEGRATORS = tuple(scene_schema()["$defs"]["integrator"]["enum"])
 OUTPUT_FORMATS = tuple(scene_schema()["$defs"]["output"]["properties"]["format"]["enum"])
 
-PROGRESS_AFTER_S = 1.0  # show a progress bar once a run has taken this long
-
 
 def start_collector() -> None:
     """The end of start-up: the garbage collector, paused by `__main__.main` while the
@@ -126,34 +124,27 @@ class _Signals(contextlib.AbstractContextManager):
         return False
 
 
-class _Progress:
-    """A one-line progress bar on a terminal, shown only for runs longer than ~1 s."""
+class _RunProgress:
+    """The run's progress bar (text.Progress): simulated time, real-time factor, time
+    left; on a terminal, for runs longer than ~2 s, never with -q, --json or --live."""
 
     def __init__(self, model, enabled: bool):
+        from vrsim_cli.text import Progress
+
         self.model = model
-        self.enabled = enabled and sys.stderr.isatty()
-        self.start = time.perf_counter()
-        self.last = 0.0
-        self.shown = False
+        self.bar = Progress(model.duration, enabled=enabled)
 
     def __call__(self, state) -> None:
-        if not self.enabled:
+        if not self.bar.enabled:
             return
-        now = time.perf_counter()
-        if now - self.start < PROGRESS_AFTER_S or now - self.last < 0.1:
-            return
-        self.last = now
-        frac = state.step / self.model.n_steps
-        bar = "#" * int(30 * frac)
-        sys.stderr.write(f"\r[{bar:<30}] {100 * frac:5.1f}%  t = {state.t:.3f} / "
-                         f"{self.model.duration:.3f} s")
-        sys.stderr.flush()
-        self.shown = True
+        from vrsim_cli.text import significant
+
+        elapsed = self.bar.clock() - self.bar.start
+        factor = f", {significant(state.t / elapsed)}x real time" if elapsed > 0 else ""
+        self.bar.update(state.t, f"t = {state.t:.3g} / {self.model.duration:g} s{factor}")
 
     def clear(self) -> None:
-        if self.shown:
-            sys.stderr.write("\r" + " " * 70 + "\r")
-            sys.stderr.flush()
+        self.bar.clear()
 
 
 def _output_target(output: str | None, fmt: str | None):
@@ -258,7 +249,7 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     if live:
         from vrsim_cli.writers.live import LiveServer
         server = LiveServer(model.name)
-    progress = _Progress(model, enabled=not quiet and not live and not as_json)
+    progress = _RunProgress(model, enabled=not quiet and not live and not as_json)
     state = make_state(model)
     failure = None
     writer = frames = None
@@ -607,7 +598,8 @@ def walk_table_command(scene_file, fmt, exact, v_max, gamma_max, dt, position, d
 
 
 @cli.command()
-@click.option("--quick", is_flag=True, help="Fewer step sizes and repeats (under a minute).")
+@click.option("--quick", is_flag=True, help="Fewer step sizes, bodies and repeats, for a first "
+              "look (a progress bar shows the time left on a terminal).")
 @click.option("--peers", is_flag=True, help="Also run MuJoCo and PyBullet when installed "
               "(pip install 'vrsim-cli[bench]').")
 @click.option("--problem", "names", multiple=True, help="Run only this problem (repeatable).")
@@ -625,8 +617,31 @@ def bench(quick, peers, names, repeats, folder):
         if name not in known:
             raise click.BadParameter(f"unknown problem '{name}' (known: {', '.join(known)})",
                                      param_hint="--problem")
-    results = bench_module.run_bench(list(names) or None, quick=quick, peers=peers,
-                                     repeats=repeats)
+    import threading
+
+    from vrsim_cli.text import Progress
+
+    # On a terminal, after ~2 s: the problem at work and the time left. A problem can take
+    # a minute, so a thread redraws the bar (elapsed time, estimate) in between.
+    bar, now, done = Progress(1.0), [0.0, ""], threading.Event()
+
+    def step(finished, total, what):
+        now[:] = [finished / total, what]
+        bar.update(*now)
+
+    def tick():
+        while not done.wait(0.5):
+            bar.update(*now)
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    ticker.start()
+    try:
+        results = bench_module.run_bench(list(names) or None, quick=quick, peers=peers,
+                                         repeats=repeats, on_progress=step)
+    finally:
+        done.set()
+        ticker.join()
+        bar.clear()
     reps = repeats or (2 if quick else 5)
     note = (f"one warm-up run, then the best of {reps} timed runs (fewer once the timed "
             f"runs of one setting have taken {bench_module.REPEAT_BUDGET_S:g} s); only the "
@@ -716,14 +731,19 @@ def sweep(scene_files, settings, reference, folder, jobs, ray_address, resume, q
     executor = _executor(jobs, ray_address)
     total = len(plan.runs) + len(plan.references)
     count = [0]
+    from vrsim_cli.text import Progress
+
+    bar = Progress(total)  # on a terminal, after ~2 s: runs done and the time left
 
     def on_run(run, outcome):
         count[0] += 1
         line = sweep_module.progress_line(run, outcome, count[0], total)
+        bar.clear()
         if outcome is None or outcome.status != "ok":
             _echo_escaped(f"error: {line}", err=True)
         elif not quiet:
             _echo_escaped(line)
+        bar.update(count[0], f"{count[0]}/{total} runs")
 
     out = Path(folder)
     with _Signals() as signals:
@@ -732,6 +752,7 @@ def sweep(scene_files, settings, reference, folder, jobs, ray_address, resume, q
                 plan, out, executor, resume=resume, on_run=on_run,
                 should_stop=lambda: signals.received is not None)
         finally:
+            bar.clear()
             executor.close()
         written = sweep_module.write_report(plan, out, describe(executor))
     skipped = f", {result.skipped} already in the table" if result.skipped else ""

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from vrsim_cli.errors import printable
 from vrsim_cli.model.state import state_hash
-from vrsim_cli.text import plural, table
+from vrsim_cli.text import plural, significant, table
 
 
 def run_summary(model, result, *, frames=None, live_url=None, error=None,
@@ -60,7 +60,7 @@ def format_run(summary: dict, profile: bool, realtime: bool) -> list[str]:
     lines = [f"{summary['scene']}: simulated {summary['simulated_s']:.6g} s in "
              f"{plural(summary['steps'], 'step')} of {summary['dt_s']:.6g} s, wall "
              f"{summary['wall_s']:.3f} s, "
-             f"{'inf' if factor is None else f'{factor:.1f}'}x real time{where}",
+             f"{'inf' if factor is None else significant(factor)}x real time{where}",
              f"state sha256:{summary['state_sha256']}"]
     if realtime:
         lines.append(f"realtime: missed {summary['missed_deadlines']} of "

@@ -40,6 +40,7 @@ from pathlib import Path
 
 from vrsim_cli.errors import (InputError, OutputError, Problem, did_you_mean,
                               format_key_path)
+from vrsim_cli.text import duration, plural
 from vrsim_cli.tools.jobs import KEEP_TRAJECTORY, Job, pack_model
 
 RUNS_CSV = "runs.csv"
@@ -843,7 +844,7 @@ def progress_line(run: Run, outcome, index: int, total: int) -> str:
         return f"{head}: failed: its reference failed"
     if outcome.status != "ok":
         return f"{head}: {outcome.status}: {outcome.message}"
-    text = f"{head}: ok, {outcome.steps} steps, {1e3 * outcome.wall_s:.3g} ms"
+    text = f"{head}: ok, {plural(outcome.steps, 'step')}, {duration(outcome.wall_s)}"
     if outcome.entities:
         pos = _max([e["pos_err_m"] for e in outcome.entities])
         ang = _max([e["angle_err_rad"] for e in outcome.entities])
