@@ -227,6 +227,12 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         ("integrator",): (integrator, "--integrator"),
         ("output", "frames", "dir"): (frames_dir, "--frames"),
         ("tolerance",): (tolerance, "--tolerance")})
+    unwritten = None
+    if live and target is None and scene.get(("output", "file")) is not None:
+        # --live shows the run; a file is kept only when asked for with -o (as documented),
+        # so watching a scene never replaces the file an earlier run wrote
+        unwritten = scene.get(("output", "file"))
+        scene = scene.without(("output", "file"))
     model = compile_model(scene, output_override=target)
     _refuse_start_overlaps(scene, model)  # before kernels compile or outputs open
     to_stdout = model.output.path is not None and str(model.output.path) == "-"
@@ -235,10 +241,9 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         (lambda text, err=False: click.echo(text, err=err or to_stdout))
     for note in model.notes:
         say(f"note: {printable(note)}", err=True)
-    if model.dt != model.dt_requested:
-        say(f"note: dt = {model.dt_requested:g} s does not divide the frame interval "
-            f"1/{model.frame_rate:g} s; using dt = {model.dt:.6g} s "
-            f"({model.steps_per_frame} steps per frame)", err=True)
+    if unwritten is not None:
+        say(f"note: --live writes no file; output.file '{printable(str(unwritten))}' is "
+            f"left alone (add -o {printable(str(unwritten))} to keep the run too)", err=True)
     if as_json and to_stdout:
         raise click.UsageError("--json prints the summary on standard output; -o - writes "
                                "the trajectory there: give -o a file")
@@ -250,6 +255,15 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         from vrsim_cli.writers.live import LiveServer
         server = LiveServer(model.name)
     progress = _RunProgress(model, enabled=not quiet and not live and not as_json)
+    from vrsim_cli.tools import pass_through
+
+    # shapes without a collision block pass through each other: say which and when
+    watch = None if quiet and not as_json else pass_through.watch(scene, model)
+
+    def on_frame(state):
+        progress(state)
+        if watch is not None:
+            watch(state)
     state = make_state(model)
     failure = None
     writer = frames = None
@@ -281,7 +295,8 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
                 writer = open_writer(model, model.output.path, model.output.format,
                                      live=server)
                 if server is not None:
-                    server.start(live_port)  # after the writer made the channels
+                    server.start(live_port, on_refused=lambda reason: click.echo(
+                        f"live: {printable(reason)}", err=True))  # after the channels
                     click.echo(f"live: serving {printable(model.name)} on {server.url} "
                                f"(Foxglove: Open connection, Foxglove WebSocket); waiting for "
                                f"a client, Ctrl-C to stop", err=True)
@@ -291,8 +306,8 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
                                    err=True)
                         sys.exit(128 + signals.received)
                 result = run_loop(model, state, writer, realtime=realtime or live,
-                                  should_stop=stop, on_frame=progress, render=frames,
-                                  coarse_callbacks=True)
+                                  should_stop=stop, on_frame=on_frame, render=frames,
+                                  coarse_callbacks=watch is None)  # the watch: every frame
             except SimulationError as exc:
                 failure = exc  # finalise the output up to the last good state, then report
             finally:
@@ -328,8 +343,12 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
             click.echo(json.dumps(failure_summary(model, failure), indent=2))
         sys.exit(failure.exit_code)
     interrupted = signal.Signals(signals.received).name if signals.received else None
+    passed = watch.found if watch is not None else None
     report = run_summary(model, result, frames=frames, interrupted_by=interrupted,
-                         live_url=server.url if server is not None else None)
+                         live_url=server.url if server is not None else None,
+                         passes_through=passed.as_dict() if passed else None)
+    if passed is not None and not as_json:
+        say(f"note: {printable(passed.note())}", err=True)
     if as_json:
         click.echo(json.dumps(report, indent=2))
     else:
@@ -401,7 +420,9 @@ def _subsampled(frames) -> str:
 @cli.command()
 @click.argument("scene_files", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("-q", "--quiet", is_flag=True, help="Print only problems.")
-def validate(scene_files, quiet):
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object per file (a "
+              "list), problems and notes included, and nothing else.")
+def validate(scene_files, quiet, as_json):
     """Check scene files; report every problem with FILE:LINE:COL."""
     start_collector()
     from vrsim_cli.model.model import compile_model
@@ -409,6 +430,7 @@ def validate(scene_files, quiet):
     from vrsim_cli.text import plural
 
     failed = False
+    reports = []
     for file in scene_files:
         try:
             scene = load_scene(file)
@@ -416,19 +438,50 @@ def validate(scene_files, quiet):
             _refuse_start_overlaps(scene, model)
         except InputError as exc:
             failed = True
-            for line in exc.lines():
-                click.echo(f"error: {line}", err=True)
+            reports.append(_validation_report(file, None, exc.problems))
+            if not as_json:
+                for line in exc.lines():
+                    click.echo(f"error: {line}", err=True)
             continue
-        if not quiet:
+        reports.append(_validation_report(file, model, [], _validate_notes(scene)))
+        if not quiet and not as_json:
             impacts = (f", {model.response.impacts} impacts ({model.response.impacts_why})"
                        if model.response else "")
             click.echo(f"{printable(file)}: ok ({plural(model.n_body, 'body')}, "
                        f"{model.duration:g} s in {plural(model.n_steps, 'step')} of "
                        f"{model.dt:.6g} s, "
                        f"{model.integrator}{impacts})")
-            for note in model.notes:
+            for note in model.notes + _validate_notes(scene):
                 click.echo(f"note: {printable(file)}: {printable(note)}", err=True)
+    if as_json:
+        click.echo(json.dumps(reports, indent=2))
     sys.exit(EXIT_INPUT if failed else 0)
+
+
+def _validate_notes(scene) -> tuple:
+    """Notes only `validate` gives (`run` says them more precisely, after the run)."""
+    from vrsim_cli.tools.pass_through import validate_note
+
+    note = validate_note(scene.data)
+    return () if note is None else (note,)
+
+
+def _validation_report(file: str, model, problems, notes=()) -> dict:
+    """One file's result for `validate --json`: what the text says, as data (SI units)."""
+    from vrsim_cli.errors import format_key_path
+
+    report = {"file": file, "ok": model is not None,
+              "problems": [{"file": p.file, "line": p.line, "column": p.col,
+                            "key": None if p.path is None else format_key_path(p.path),
+                            "message": p.message, "hint": p.hint} for p in problems]}
+    if model is not None:
+        report.update(
+            name=model.name, bodies=int(model.n_body), duration_s=float(model.duration),
+            steps=int(model.n_steps), dt_s=float(model.dt), integrator=model.integrator,
+            impacts=model.response.impacts if model.response else None,
+            impacts_why=model.response.impacts_why if model.response else None,
+            notes=list(model.notes) + list(notes))
+    return report
 
 
 def _refuse_start_overlaps(scene, model) -> None:

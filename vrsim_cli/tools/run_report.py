@@ -11,7 +11,7 @@ from vrsim_cli.text import plural, significant, table
 
 
 def run_summary(model, result, *, frames=None, live_url=None, error=None,
-                interrupted_by=None) -> dict:
+                interrupted_by=None, passes_through=None) -> dict:
     """The run as JSON-ready numbers (SI units; names say the unit)."""
     state = result.state
     return {
@@ -38,6 +38,8 @@ def run_summary(model, result, *, frames=None, live_url=None, error=None,
         "live": live_url,
         "interrupted_by": interrupted_by,
         "error": None if error is None else str(error),
+        # shapes that met without a collision block (tools/pass_through): bodies, t_s, depth_m
+        "passes_through": passes_through,
     }
 
 

@@ -1,0 +1,100 @@
+"""Shapes that pass through each other because the scene has no `collision:` block.
+
+Layer 7. Without a collision block nothing collides (docs/scene-format.md, *Collision*):
+a box dropped on a floor falls through it without a word. vrsim keeps that rule (turning
+collision on behind the user's back would change the motion of every such scene, and
+cost them the contact kernels' compile) and says so instead: `validate` names the bodies
+whose shapes would pass through each other, and `run` watches for the first pair that
+does, once per frame, and names the two bodies and the time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+HOW_TO = "add `collision: {}` to the scene to make shapes collide (or `collision: " \
+         "{enabled: false}` to say they should not)"
+
+
+def candidates(data: dict) -> list[str]:
+    """Names of the scene's bodies with shapes, when the scene has no collision block and
+    at least one of them is dynamic and another has a shape too (else [])."""
+    if "collision" in data:
+        return []  # the user decided (`enabled: false` included)
+    bodies = data.get("bodies") or []
+    shaped = [b for b in bodies if b.get("shape") is not None]
+    dynamic = [b for b in shaped if b.get("type", "dynamic") == "dynamic"]
+    if not dynamic or len(shaped) < 2:
+        return []
+    return [str(b["name"]) for b in shaped]
+
+
+def validate_note(data: dict) -> str | None:
+    """What `validate` says of such a scene (it does not simulate, so no time)."""
+    names = candidates(data)
+    if not names:
+        return None
+    shown = ", ".join(names[:6]) + (f" and {len(names) - 6} more" if len(names) > 6 else "")
+    return (f"no collision block: the shapes of {shown} pass through each other wherever "
+            f"they meet (`vrsim run` names the first pair and when); {HOW_TO}")
+
+
+@dataclass(frozen=True)
+class PassThrough:
+    """The first pair found overlapping: body names, time (s), depth (m)."""
+
+    body_a: str
+    body_b: str
+    t: float
+    depth: float
+
+    def note(self) -> str:
+        return (f"'{self.body_a}' and '{self.body_b}' pass through each other from "
+                f"t = {self.t:.6g} s ({self.depth:.3g} m deep at that frame): without a "
+                f"collision block nothing collides; {HOW_TO}")
+
+    def as_dict(self) -> dict:
+        return {"bodies": [self.body_a, self.body_b], "t_s": self.t, "depth_m": self.depth}
+
+
+class Watch:
+    """on_frame callback of a run: checks each frame's state for shapes that interpenetrate
+    by more than the collision tolerance, until the first pair is found (`found`).
+
+    It detects with a collision model compiled from the same scene with `collision:
+    {response: none}` (detection only), applied to the run's states: the run itself is
+    untouched. `watch(scene)` gives None when the scene needs no watching."""
+
+    def __init__(self, probe, n_scene: int):
+        self.probe, self.n_scene = probe, n_scene
+        self.found: PassThrough | None = None
+
+    def __call__(self, state) -> None:
+        if self.found is not None:
+            return
+        from vrsim_cli.stages.collision.detect import start_overlaps
+
+        pairs = start_overlaps(self.probe, state, self.n_scene)
+        if pairs:
+            a, b, depth = pairs[0]
+            self.found = PassThrough(self.probe.body_name[a], self.probe.body_name[b],
+                                     float(state.t), float(depth))
+
+
+def watch(scene, model) -> Watch | None:
+    """A Watch for `scene` (compiled as `model`), or None: it has a collision block, no
+    dynamic shape with another shape to meet, or its detection model cannot be built."""
+    if not candidates(scene.data) or model.collision is not None:
+        return None
+    from vrsim_cli.errors import InputError
+    from vrsim_cli.model.model import compile_model
+
+    try:
+        probe_scene = scene.with_overrides(
+            {("collision",): ({"response": "none", "continuous": False}, "pass-through check")})
+        probe = compile_model(probe_scene)
+    except InputError:
+        return None
+    if probe.collision is None or probe.n_body != model.n_body:
+        return None
+    return Watch(probe, len(scene.data.get("bodies") or []))
