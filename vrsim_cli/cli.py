@@ -534,16 +534,23 @@ def schema():
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 @_reports_errors
 def info(trajectory_file, as_json):
-    """Summarise a trajectory file: entities, duration, samples, channels."""
+    """Summarise a trajectory file: entities, duration, samples, channels.
+
+    Exit 0 when it holds trajectories, 1 when it holds none vrsim can read, 2 when it
+    cannot be read at all."""
     from vrsim_cli.tools.trajectory import format_summary, read_trajectory, summary
 
     info_ = summary(read_trajectory(trajectory_file), trajectory_file)
     if as_json:
         click.echo(json.dumps(info_, indent=2))
-        return
-    # names, topics and metadata come from the file: format_summary escapes them
-    for line in format_summary(info_):
-        click.echo(line)
+    else:  # names, topics and metadata come from the file: format_summary escapes them
+        for line in format_summary(info_):
+            click.echo(line)
+    if not info_["entities"]:  # a CI step reading it must not pass on an empty reading
+        click.echo(f"error: {printable(trajectory_file)}: no trajectory vrsim can read "
+                   f"(vrsim's /vrsim/state, foxglove.FrameTransforms or ROS 2 "
+                   f"tf2_msgs/msg/TFMessage)", err=True)
+        sys.exit(1)
 
 
 # ----------------------------------------------------------------------- collision-proxies
