@@ -829,7 +829,7 @@ def fronts_summary(plan: Plan, folder: Path) -> list[str]:
                 continue
             front = sweep_report.pareto(srows, col)
             shown = "; ".join(f"{sweep_report._params(r, plan.keys) or 'as is'} "
-                              f"{1e3 * float(r['wall_s']):.3g} ms {float(r[col]):.2e} {unit}"
+                              f"{duration(float(r['wall_s']))}, {float(r[col]):.3g} {unit}"
                               for r in front[:6])
             more = f"; ... ({len(front) - 6} more)" if len(front) > 6 else ""
             lines.append(f"{plan.scenes[file][0]}: Pareto front ({label}): {shown}{more}")
