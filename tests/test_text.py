@@ -4,6 +4,7 @@ terminal, after ~2 s, and never fatal to the work it reports on)."""
 from __future__ import annotations
 
 import io
+import re
 
 import pytest
 
@@ -167,3 +168,37 @@ def test_real_time_factors_have_two_significant_digits():
     assert ", 0.012x real time" in format_run(summary, False, False)[0]  # was 0.0x
     summary["realtime_factor"] = 1234.5
     assert ", 1200x real time" in format_run(summary, False, False)[0]
+
+
+def test_sweep_shows_runs_done_and_time_left(invoke, write_scene, tmp_path, terminal):
+    scene = write_scene(RUN)
+    result = invoke("sweep", scene, "--set", "dt=0.01,0.005", "--jobs", "1", "-o",
+                    tmp_path / "sweep")
+    assert result.exit_code == 0, result.output
+    assert "\r[" in result.stderr and "/2 runs" in result.stderr and " left" in result.stderr
+    assert "\r" not in result.stdout  # the run lines and summary stay clean
+
+
+def test_bench_redraws_its_bar_while_a_problem_runs(monkeypatch, terminal):
+    """A bench problem can take a minute: the bar moves in between (the ticker thread)."""
+    import time as clock
+
+    from vrsim_cli.tools.bench import report
+
+
+    def slow(names, quick, peers, repeats, on_progress):
+        on_progress(0, 2, "projectile (vrsim), 1/2")
+        clock.sleep(1.2)  # the ticker redraws every 0.5 s
+        on_progress(1, 2, "bounce (vrsim), 2/2")
+        clock.sleep(0.6)  # (a call within 0.2 s of the last drawing is drawn by the ticker)
+        raise KeyboardInterrupt  # stop before writing a report
+
+    monkeypatch.setattr(report, "run_bench", lambda *a, **k: slow(*a, **k))
+    from click.testing import CliRunner
+
+    from vrsim_cli.cli import cli
+
+    shown = CliRunner().invoke(cli, ["bench", "--quick"]).stderr
+    assert shown.count("projectile (vrsim), 1/2") >= 2  # redrawn while it ran
+    assert "50%  bounce (vrsim), 2/2" in shown and " left" in shown
+    assert re.search(r"\r +\rinterrupted\n$", shown)  # the bar erased before the message
