@@ -80,3 +80,23 @@ def test_point_masses_and_kinematic_shapes_alone_are_not_watched():
     assert candidates(kinematic) == []
     kinematic["bodies"].append({"name": "crate", "shape": {"type": "box"}})
     assert candidates(kinematic) == ["door", "wall", "crate"]
+
+
+def test_a_watch_that_breaks_is_dropped_and_the_run_goes_on(write_scene, monkeypatch):
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import load_scene
+    import importlib
+
+    from vrsim_cli.tools.pass_through import watch
+
+    detect = importlib.import_module("vrsim_cli.stages.collision.detect")  # the module
+    scene = load_scene(write_scene(CRATE))
+    found = watch(scene, compile_model(scene))
+
+    def broken(*args):
+        raise RuntimeError("a detection bug")
+
+    monkeypatch.setattr(detect, "start_overlaps", broken)
+    found(make_state(compile_model(scene)))  # no exception
+    assert found.probe is None and found.found is None

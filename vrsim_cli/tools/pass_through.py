@@ -70,11 +70,15 @@ class Watch:
         self.found: PassThrough | None = None
 
     def __call__(self, state) -> None:
-        if self.found is not None:
+        if self.found is not None or self.probe is None:
             return
         from vrsim_cli.stages.collision.detect import start_overlaps
 
-        pairs = start_overlaps(self.probe, state, self.n_scene)
+        try:
+            pairs = start_overlaps(self.probe, state, self.n_scene)
+        except Exception:  # noqa: BLE001 - a diagnostic must never stop the run it watches
+            self.probe = None
+            return
         if pairs:
             a, b, depth = pairs[0]
             self.found = PassThrough(self.probe.body_name[a], self.probe.body_name[b],
@@ -93,7 +97,7 @@ def watch(scene, model) -> Watch | None:
         probe_scene = scene.with_overrides(
             {("collision",): ({"response": "none", "continuous": False}, "pass-through check")})
         probe = compile_model(probe_scene)
-    except InputError:
+    except (InputError, ValueError, ArithmeticError):  # e.g. a flat mesh has no hull to test
         return None
     if probe.collision is None or probe.n_body != model.n_body:
         return None
