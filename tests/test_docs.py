@@ -190,3 +190,30 @@ def test_the_comparison_can_fail():
     assert not matches(line, line.replace("steps", "step"), 1e-9, vary)
     assert not matches(line, line.replace("0.254", "9.9"), 1e-9, [])
     assert missing_lines(["a 1", "b 2"], ["b 2", "a 1"], 1e-9, []) == ["b 2"]
+
+
+def _table_keys(section: str) -> set[str]:
+    return set(re.findall(r"^\| `([a-z_]+)` \|", section, flags=re.M))
+
+
+def test_scene_format_tables_list_every_collision_key():
+    """The `impacts` key was missing from the collision table: every key the schema
+    allows in the top-level and per-body collision blocks has its row."""
+    import json
+
+    schema = json.loads((REPO / "vrsim_cli" / "scene" / "scene.schema.json").read_text())
+    text = (REPO / "docs" / "scene-format.md").read_text()
+    top = text.split("Top level `collision`:", 1)[1].split("Per body `collision`:", 1)
+    assert _table_keys(top[0]) == set(schema["$defs"]["collision"]["properties"])
+    per_body = top[1].split("\n\n", 2)[1]
+    assert _table_keys(per_body) == set(schema["$defs"]["body_collision"]["properties"])
+
+
+def test_bench_quick_promises_no_time():
+    """`bench --quick` promised "under a minute" and took 94 s: its help promises none."""
+    from click.testing import CliRunner
+
+    from vrsim_cli.cli import cli
+
+    help_text = CliRunner().invoke(cli, ["bench", "--help"]).output
+    assert "--quick" in help_text and "minute" not in help_text
