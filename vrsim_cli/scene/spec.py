@@ -205,8 +205,8 @@ class Scene:
                 problems.append(self.problem(
                     path, f"path '{raw}' leaves the scene file's folder",
                     "a scene reads only files in its own folder or below it; copy the file "
-                    "there (a link to it would be refused too: links are followed before "
-                    "this check)"))
+                    "there: a link to it would be followed out of the folder and refused "
+                    "too"))
             return None
         return resolved
 
