@@ -100,3 +100,16 @@ def test_a_watch_that_breaks_is_dropped_and_the_run_goes_on(write_scene, monkeyp
     monkeypatch.setattr(detect, "start_overlaps", broken)
     found(make_state(compile_model(scene)))  # no exception
     assert found.probe is None and found.found is None
+
+
+def test_large_scenes_are_not_watched(write_scene):
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.scene.spec import load_scene
+    from vrsim_cli.tools.pass_through import WATCH_MAX_SHAPES, watch
+
+    boxes = "\n".join(f"  - {{name: b{i}, mass: 1, shape: {{type: sphere, radius: 0.1}}, "
+                      f"position: [{i}, 1, 0]}}" for i in range(WATCH_MAX_SHAPES))
+    scene = load_scene(write_scene(CRATE + boxes + "\n"))
+    assert watch(scene, compile_model(scene)) is None
+    small = load_scene(write_scene(CRATE, "small.yaml"))
+    assert watch(small, compile_model(small)) is not None

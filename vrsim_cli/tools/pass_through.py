@@ -12,6 +12,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+# Beyond this many shapes a detection per frame would cost a run more than the note is
+# worth; `validate` still names them.
+WATCH_MAX_SHAPES = 256
+
 HOW_TO = "add `collision: {}` to the scene to make shapes collide (or `collision: " \
          "{enabled: false}` to say they should not)"
 
@@ -87,8 +91,10 @@ class Watch:
 
 def watch(scene, model) -> Watch | None:
     """A Watch for `scene` (compiled as `model`), or None: it has a collision block, no
-    dynamic shape with another shape to meet, or its detection model cannot be built."""
-    if not candidates(scene.data) or model.collision is not None:
+    dynamic shape with another shape to meet, more than WATCH_MAX_SHAPES shapes, or its
+    detection model cannot be built."""
+    names = candidates(scene.data)
+    if not names or len(names) > WATCH_MAX_SHAPES or model.collision is not None:
         return None
     from vrsim_cli.errors import InputError
     from vrsim_cli.model.model import compile_model
