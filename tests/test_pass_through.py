@@ -98,7 +98,9 @@ def test_a_watch_that_breaks_is_dropped_and_the_run_goes_on(write_scene, monkeyp
         raise RuntimeError("a detection bug")
 
     monkeypatch.setattr(detect, "start_overlaps", broken)
-    found(make_state(compile_model(scene)))  # no exception
+    state = make_state(compile_model(scene))
+    found(state.replace(body_pos=state.body_pos * 0.0))  # the crate in the floor: detected
+    # (no exception)
     assert found.probe is None and found.found is None
 
 
@@ -113,3 +115,62 @@ def test_large_scenes_are_not_watched(write_scene):
     assert watch(scene, compile_model(scene)) is None
     small = load_scene(write_scene(CRATE, "small.yaml"))
     assert watch(small, compile_model(small)) is not None
+
+
+def test_the_bounding_test_never_hides_an_overlap(write_scene):
+    """Bounds.near skips the detection when no bounding spheres meet: it must be True
+    wherever the detection finds an overlap (seeded random poses of a box, a capsule, a
+    cylinder and a sphere over a plane and each other)."""
+    import numpy as np
+
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import load_scene
+    from vrsim_cli.stages.collision.detect import start_overlaps
+    from vrsim_cli.tools.pass_through import Bounds, watch
+
+    scene = load_scene(write_scene("""
+        vrsim: 1
+        duration: 1
+        bodies:
+          - {name: floor, type: static, shape: {type: plane, normal: [0, 1, 1], offset: 0.1}}
+          - {name: box, mass: 1, shape: {type: box, size: [0.6, 0.2, 0.4]}}
+          - {name: pill, mass: 1, shape: {type: capsule, radius: 0.1, length: 0.5}}
+          - {name: can, mass: 1, shape: {type: cylinder, radius: 0.2, length: 0.3}}
+          - {name: ball, type: kinematic, shape: {type: sphere, radius: 0.25}}
+        """))
+    model = compile_model(scene)
+    probe = watch(scene, model).probe
+    bounds = Bounds(scene.data)
+    rng = np.random.default_rng(52)
+    state = make_state(model)
+    found = 0
+    for _ in range(400):
+        quat = rng.normal(size=(5, 4))
+        quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+        pos = rng.uniform(-0.6, 0.6, size=(5, 3))
+        pos[0] = 0.0
+        s = state.replace(body_pos=pos, body_quat=quat)
+        if start_overlaps(probe, s, 5):
+            found += 1
+            assert bounds.near(pos, probe.collision.tolerance)
+    assert found > 100  # the draws do overlap often
+
+
+def test_a_keyframed_door_through_a_static_wall_is_not_reported(invoke, write_scene, tmp_path):
+    """Only pairs with a dynamic body: a collision block would not stop a kinematic door."""
+    scene = write_scene("""
+        vrsim: 1
+        duration: 1
+        bodies:
+          - {name: wall, type: static, shape: {type: box, size: [0.2, 2, 2]}}
+          - name: door
+            type: kinematic
+            shape: {type: box, size: [1, 2, 0.05]}
+            position: [-2, 0, 0]
+            velocity: [4, 0, 0]
+          - {name: crate, mass: 1, shape: {type: box, size: [0.5, 0.5, 0.5]}, position: [5, 5, 5]}
+        gravity: [0, 0, 0]
+        """)
+    result = invoke("run", scene, "-o", tmp_path / "o.csv")
+    assert result.exit_code == 0 and "pass through" not in result.stderr
