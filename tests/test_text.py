@@ -202,3 +202,18 @@ def test_bench_redraws_its_bar_while_a_problem_runs(monkeypatch, terminal):
     assert shown.count("projectile (vrsim), 1/2") >= 2  # redrawn while it ran
     assert "50%  bounce (vrsim), 2/2" in shown and " left" in shown
     assert re.search(r"\r +\rinterrupted\n$", shown)  # the bar erased before the message
+
+
+@pytest.mark.parametrize("command", [["sweep", "{scene}", "--set", "dt=0.01,0.005", "--jobs",
+                                      "1", "-o", "{out}"],
+                                     ["validate", "--json", "{scene}"]])
+def test_sweep_and_validate_with_stderr_closed(write_scene, tmp_path, command):
+    import subprocess
+    import sys
+
+    args = [a.format(scene=write_scene(RUN), out=tmp_path / "sweep") for a in command]
+    code = ("import sys; assert sys.stderr is None; from vrsim_cli.cli import main; "
+            f"sys.argv = ['vrsim'] + {args!r}; main()")
+    done = subprocess.run(["bash", "-c", f'"{sys.executable}" -c "$0" 2>&-', code],
+                          stdout=subprocess.PIPE, timeout=300)
+    assert done.returncode == 0 and done.stdout

@@ -1045,7 +1045,9 @@ def main() -> None:
 
 def interrupted(exc: "interrupts.Interrupted") -> None:
     """Report a signal that arrived while nothing was being written, and exit."""
-    sys.stderr.write(f"interrupted by {interrupts.name(exc.signum)}; nothing was written\n")
+    if sys.stderr is not None:  # None under `2>&-`
+        sys.stderr.write(f"interrupted by {interrupts.name(exc.signum)}; nothing was "
+                         f"written\n")
     sys.exit(exc.exit_code)
 
 
