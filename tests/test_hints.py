@@ -279,3 +279,17 @@ def test_every_suggestion_site_has_a_case():
     cases = {c[0] for c in TYPOS} | set(globals())
     for file, (_, names) in SITES.items():
         assert all(name in cases for name in names), file
+
+
+@pytest.mark.parametrize("target, hint, instead", [
+    ("/dev/stdout", "use -o - to write to standard output", ["-o", "-"]),
+    ("/dev/null", "leave out -o to write nothing", []),
+])
+def test_the_special_output_advice_of_run(invoke, write_scene, target, hint, instead):
+    scene = write_scene(BASE + "bodies: [{name: ball, mass: 1}]")
+    result = invoke("run", scene, "-o", target, "--format", "csv")
+    assert result.exit_code == 2 and hint in result.stderr, result.stderr
+    result = invoke("run", scene, *instead)
+    assert result.exit_code == 0, result.stderr
+    if instead:  # the CSV went to standard output
+        assert result.stdout.startswith("t,entity,")
