@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from vrsim_cli.maths.spatial import quat_normalize
-from vrsim_cli.model.model import compile_model
+from vrsim_cli.model.model import MAX_TUM_ENTITIES, compile_model
 from vrsim_cli.model.state import make_state
 from vrsim_cli.scene.spec import parse_scene
 from vrsim_cli.writers import open_writer
@@ -73,12 +73,19 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--formats", default="mcap,csv,tum")
     args = parser.parse_args(argv)
+    if args.samples < 2 or args.bodies < 1 or args.repeats < 1:
+        parser.error("--samples must be >= 2 (the first is timed apart), --bodies and "
+                     "--repeats >= 1")
     model = compile_model(parse_scene(scene_text(args.bodies), "<output-cost>"))
     samples = states(model, args.samples)
     print(f"{args.bodies} bodies, {args.samples} samples, best of {args.repeats}; "
           f"Python {platform.python_version()} on {platform.machine()}")
     print(f"{'format':<7}{'per sample':>12}{'first':>10}{'close':>10}{'all / samples':>15}  (ms)")
     for fmt in args.formats.split(","):
+        if fmt == "tum" and args.bodies > MAX_TUM_ENTITIES:  # one open file per entity
+            print(f"{fmt:<7}skipped: TUM writes one file per entity, at most "
+                  f"{MAX_TUM_ENTITIES} (--bodies {args.bodies})")
+            continue
         runs = []
         for _ in range(args.repeats):
             with tempfile.TemporaryDirectory() as folder:

@@ -78,10 +78,13 @@ def _plan(scene: Path, sets: list[str], reference: str):
     return sweep.plan_sweep([str(scene)], [sweep.parse_setting(s) for s in sets], pairs, None)
 
 
-def overhead(executor_name: str, jobs: int) -> dict:
+def overhead(executor_name: str, jobs: int, quick: bool = False) -> dict:
     scene = REPO / "scenarios" / "projectile.yaml"
     sets = ["dt=0.01,0.005,0.004,0.0025,0.002", "integrator=euler,symplectic-euler,rk4,verlet",
             "bodies.ball.velocity=[7.07, 7.07, 0],[5, 9, 0],[9, 5, 0],[3, 3, 0],[6, 6, 1]"]
+    if quick:  # 8 variants: that the script runs, not a measurement (tests/test_benchmarks)
+        sets = ["dt=0.01,0.005", "integrator=euler,rk4",
+                "bodies.ball.velocity=[7.07, 7.07, 0],[5, 9, 0]"]
     reference = "integrator=rk4 dt=0.01 bodies.ball.velocity=[7.07,7.07,0]"
     executor = Serial() if jobs == 1 else LocalPool(jobs)
     outcomes = []
@@ -99,7 +102,8 @@ def overhead(executor_name: str, jobs: int) -> dict:
         t3 = time.perf_counter()
         _, rows = sweep.read_rows(Path(tmp) / "out" / sweep.RUNS_CSV)
     runs = [r for r in rows if r["role"] == "run"]
-    assert len(runs) == 100 and all(r["status"] == "ok" for r in runs), "a run failed"
+    assert len(runs) == (8 if quick else 100), f"{len(runs)} runs"
+    assert all(r["status"] == "ok" for r in runs), "a run failed"
     sim = [float(r["wall_s"]) for r in rows]  # the reference's simulation counts too
     n = len(runs)
     core_s = (t2 - t0) * jobs  # core time the sweep held
@@ -147,16 +151,20 @@ def main(argv=None) -> int:
     parser.add_argument("--only", choices=["overhead", "scaling"])
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    parser.add_argument("--quick", action="store_true", help="8 variants and short capacity "
+                        "probes: checks that the script works (seconds), measures nothing")
     args = parser.parse_args(argv)
+    probe = 0.2 if args.quick else 2.0
     out = {"load_average_before": [round(x, 2) for x in os.getloadavg()],
            "cores": os.cpu_count()}
-    out["capacity"] = round(capacity(args.jobs), 3)
+    out["capacity"] = round(capacity(args.jobs, probe), 3)
     if args.only in (None, "overhead"):
-        out["overhead"] = [overhead("serial", 1), overhead("pool", args.jobs)]
+        out["overhead"] = [overhead("serial", 1, args.quick)] + (
+            [overhead("pool", args.jobs, args.quick)] if args.jobs > 1 else [])
     if args.only in (None, "scaling"):
-        out["capacity_after_overhead"] = round(capacity(args.jobs), 3)
+        out["capacity_after_overhead"] = round(capacity(args.jobs, probe), 3)
         out["scaling"] = scaling(args.jobs)
-        out["capacity_after_scaling"] = round(capacity(args.jobs), 3)
+        out["capacity_after_scaling"] = round(capacity(args.jobs, probe), 3)
     out["load_average_after"] = [round(x, 2) for x in os.getloadavg()]
     if args.json:
         print(json.dumps(out, indent=2))

@@ -271,6 +271,7 @@ def test_version(invoke):
 def test_progress_bar_on_a_terminal_for_long_runs(write_scene, monkeypatch):
     import io
     import vrsim_cli.cli as cli_module
+    from vrsim_cli import text
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.model.state import make_state
     from vrsim_cli.scene.spec import load_scene
@@ -281,18 +282,19 @@ def test_progress_bar_on_a_terminal_for_long_runs(write_scene, monkeypatch):
             return True
 
     terminal = Terminal()
-    monkeypatch.setattr(cli_module.sys, "stderr", terminal)
-    monkeypatch.setattr(cli_module, "PROGRESS_AFTER_S", 0.0)
+    monkeypatch.setattr(text.sys, "stderr", terminal)
+    monkeypatch.setattr(text, "PROGRESS_AFTER_S", 0.0)
     model = compile_model(load_scene(write_scene(BALL)))
-    progress = cli_module._Progress(model, enabled=True)
+    progress = cli_module._RunProgress(model, enabled=True)
     state = make_state(model)
     for _ in range(50):
         state = step(model, state)
     progress(state)
-    assert "[###############               ]  50.0%  t = 0.500 / 1.000 s" in terminal.getvalue()
+    assert "[##########          ]  50%  t = 0.5 / 1 s, " in terminal.getvalue()
+    assert "x real time, " in terminal.getvalue() and " left" in terminal.getvalue()
     progress.clear()
     assert terminal.getvalue().endswith("\r")
-    quiet = cli_module._Progress(model, enabled=False)
+    quiet = cli_module._RunProgress(model, enabled=False)
     quiet(state)
     assert terminal.getvalue().count("%") == 1
 
@@ -363,7 +365,7 @@ def test_the_foundation_issues_example_scene_runs_and_says_what_is_unused(invoke
                                                                           tmp_path):
     result = invoke("run", write_scene(ISSUE_EXAMPLE))
     assert result.exit_code == 0, result.stderr
-    assert "note: material (restitution, friction) of 1 body(ies), first bodies[0], has no " \
+    assert "note: material (restitution, friction) of 1 body, first bodies[0], has no " \
            "effect without a top-level collision block" in result.stderr
     assert "dt = 0.001 s does not divide the frame interval 1/90 s" in result.stderr
     assert set(read_trajectory(tmp_path / "ball.mcap").tracks) == {"ball", "observer"}
@@ -414,3 +416,70 @@ print(seen)
                           timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip().splitlines()[-1] == "[(True, True)]"
+
+
+# ----------------------------------------------------------------------------- issue 52
+
+
+def test_default_dt_and_frame_rate_say_nothing(invoke, write_scene):
+    """The defaults (1 ms, 60 Hz) do not divide: the note came on every scene. Now only a
+    scene that writes both numbers hears it, once; the summary shows the dt used."""
+    bare = BALL.replace("frame_rate: 50\ndt: 0.01\n", "")
+    for text in (bare, bare + "dt: 0.001\n", bare + "frame_rate: 60\n"):
+        result = invoke("run", write_scene(text))
+        assert result.exit_code == 0
+        assert "does not divide" not in result.stderr
+        assert "steps of 0.000980392 s" in result.stdout
+    result = invoke("run", write_scene(bare + "dt: 0.001\nframe_rate: 60\n"))
+    assert result.stderr.count("does not divide") == 1
+    result = invoke("run", write_scene(bare + "frame_rate: 60\n"), "--dt", "0.001")
+    assert result.stderr.count("does not divide") == 1  # --dt is the user's number too
+
+
+@pytest.mark.parametrize("gravity, up, note", [
+    ("[0, 0, -9.81]", "z", "output.up is z, from gravity [0, 0, -9.81]"),
+    ("[0, -9.81, 0]", "y", None),
+    ("[0, 0, 0]", "y", None),
+    ("[9.81, 0, 0]", "y", "points along neither -y nor -z"),
+])
+def test_output_up_follows_gravity_when_not_given(write_scene, gravity, up, note):
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.scene.spec import load_scene
+
+    model = compile_model(load_scene(write_scene(BALL + f"gravity: {gravity}\n")))
+    assert model.output.up == up
+    said = [n for n in model.notes if "output.up" in n]
+    assert (said[0].startswith(note) or note in said[0]) if note else not said
+    written = compile_model(load_scene(write_scene(
+        BALL + f"gravity: {gravity}\noutput: {{up: y}}\n")))
+    assert written.output.up == "y" and not [n for n in written.notes if "output.up" in n]
+
+
+def test_a_z_up_scene_stands_upright_in_the_mcap(invoke, write_scene, tmp_path):
+    """The MCAP's scene frame hangs under Foxglove's z-up world without a turn when up is
+    z: gravity [0, 0, -g] points down there (docs/outputs.md)."""
+    from mcap.reader import make_reader
+
+    out = tmp_path / "o.mcap"
+    result = invoke("run", write_scene(BALL + "gravity: [0, 0, -9.81]\n"), "-o", out)
+    assert result.exit_code == 0 and "output.up is z" in result.stderr
+    with open(out, "rb") as f:
+        meta = {r.name: dict(r.metadata) for r in make_reader(f).iter_metadata()}
+    assert meta["vrsim"]["up"] == "z"
+
+
+def test_validate_json(invoke, write_scene):
+    good = write_scene(BALL)
+    bad = write_scene(BALL.replace("mass: 1", "mass: -1"), "bad.yaml")
+    result = invoke("validate", "--json", good, bad)
+    assert result.exit_code == 2 and result.stderr == ""
+    reports = json.loads(result.stdout)
+    assert [r["ok"] for r in reports] == [True, False]
+    assert reports[0]["bodies"] == 1 and reports[0]["steps"] == 100
+    assert reports[0]["dt_s"] == 0.01 and reports[0]["integrator"] == "symplectic-euler"
+    problem = reports[1]["problems"][0]
+    assert problem["file"] == str(bad) and problem["line"] == 6
+    assert problem["key"] == "bodies[0].mass" and "0" in problem["message"]
+    text = invoke("validate", bad)
+    assert f"{bad}:{problem['line']}:{problem['column']}" in text.stderr  # the same place
+    assert invoke("validate", "--json", good).exit_code == 0

@@ -283,7 +283,7 @@ def test_info_and_compare_read_transforms_of_a_file_vrsim_did_not_write(invoke, 
     assert result.exit_code == 0, result.output
     assert result.stdout.splitlines()[0] == f"{theirs}: mcap, 2 entities, 11 samples"
     assert "entities: robot, arm" in result.stdout
-    assert "tracks from /tf (FrameTransforms)" in result.stdout and "(map)" in result.stdout
+    assert "tracks from /tf (transforms)" in result.stdout and "(map)" in result.stdout
     traj = read_trajectory(theirs)
     assert traj.tracks["robot"].pos.tolist() == [list(robot(t)) for t in times]
     assert np.allclose(traj.tracks["robot"].quat[:, 0], np.cos(np.array(times) / 2), atol=0)
@@ -312,7 +312,75 @@ def test_a_file_without_trajectories_is_an_input_error_for_compare(invoke, tmp_p
     with foxglove.open_mcap(path, context=context):
         foxglove.Channel("/log", context=context).log({"text": "hello"}, log_time=1)
     info = invoke("info", path)
-    assert info.exit_code == 0 and "0 entities" in info.stdout
+    assert info.exit_code == 1 and "0 entities" in info.stdout  # (and an error: see below)
     assert "no trajectories" in info.stdout
     result = invoke("compare", path, path)
     assert result.exit_code == 2 and "holds no trajectory" in result.stderr
+
+
+# ROS 2's message definitions as rosbag2 stores them in an MCAP schema (the message, then
+# each type it uses after a line of '=' and "MSG: type")
+TF_MSGDEF = "\n".join([
+    "geometry_msgs/TransformStamped[] transforms",
+    "=" * 80, "MSG: geometry_msgs/TransformStamped",
+    "std_msgs/Header header", "string child_frame_id", "geometry_msgs/Transform transform",
+    "=" * 80, "MSG: std_msgs/Header", "builtin_interfaces/Time stamp", "string frame_id",
+    "=" * 80, "MSG: builtin_interfaces/Time", "int32 sec", "uint32 nanosec",
+    "=" * 80, "MSG: geometry_msgs/Transform",
+    "geometry_msgs/Vector3 translation", "geometry_msgs/Quaternion rotation",
+    "=" * 80, "MSG: geometry_msgs/Vector3", "float64 x", "float64 y", "float64 z",
+    "=" * 80, "MSG: geometry_msgs/Quaternion",
+    "float64 x", "float64 y", "float64 z", "float64 w"])
+
+
+def ros2_bag(path, positions: dict, times):
+    """An MCAP as `ros2 bag record /tf` writes it: tf2_msgs/msg/TFMessage in CDR, encoded
+    by mcap-ros2-support (an implementation independent of vrsim's reader)."""
+    mcap_ros2 = pytest.importorskip("mcap_ros2.writer", reason="mcap-ros2-support is in "
+                                                               "the test extra")
+    with open(path, "wb") as f:
+        writer = mcap_ros2.Writer(f)
+        schema = writer.register_msgdef("tf2_msgs/msg/TFMessage", TF_MSGDEF)
+        for t in times:
+            sec, nsec = divmod(round(t * 1e9), 1_000_000_000)
+            writer.write_message("/tf", schema, {"transforms": [
+                {"header": {"stamp": {"sec": sec, "nanosec": nsec}, "frame_id": "odom"},
+                 "child_frame_id": name,
+                 "transform": {"translation": dict(zip("xyz", f(t))),
+                               "rotation": {"x": 0.0, "y": 0.0, "z": math.sin(t / 2),
+                                            "w": math.cos(t / 2)}}}
+                for name, f in positions.items()]}, log_time=round(t * 1e9) + 7)
+        writer.finish()
+    return path
+
+
+def test_info_and_compare_read_a_ros2_tf_bag(invoke, tmp_path):
+    """`info` on a ROS 2 /tf bag printed "0 entities" and exited 0. (Times from 0.1 s: a
+    zero stamp counts as unset and takes the log time, as for Foxglove's messages.)"""
+    times = [k / 10 for k in range(1, 12)]
+    base = lambda t: (t, -t, 0.25)  # noqa: E731
+    bag = ros2_bag(tmp_path / "bag.mcap", {"base_link": base, "laser": lambda t: (0, 0, t)},
+                   times)
+    result = invoke("info", bag)
+    assert result.exit_code == 0, result.output
+    assert result.stdout.splitlines()[0] == f"{bag}: mcap, 2 entities, 11 samples"
+    assert "tracks from /tf (transforms)" in result.stdout and "(odom)" in result.stdout
+    traj = read_trajectory(bag)
+    assert traj.tracks["base_link"].pos.tolist() == [list(base(t)) for t in times]
+    assert traj.tracks["base_link"].t.tolist() == [  # the header stamps, not the log times
+        int(round(t * 1e9)) // 10**9 + int(round(t * 1e9)) % 10**9 * 1e-9 for t in times]
+    assert np.array_equal(traj.tracks["laser"].quat[:, 3], np.sin(np.array(times) / 2))
+    assert traj.frames == {"base_link": "odom", "laser": "odom"}
+
+
+def test_info_on_a_file_without_trajectories_exits_1(invoke, tmp_path):
+    import foxglove
+
+    path = tmp_path / "logs.mcap"
+    context = foxglove.Context()
+    with foxglove.open_mcap(path, context=context):
+        foxglove.Channel("/log", context=context).log({"text": "hello"}, log_time=1)
+    info = invoke("info", path)
+    assert info.exit_code == 1 and "0 entities" in info.stdout
+    assert "no trajectory vrsim can read" in info.stderr
+    assert invoke("info", path, "--json").exit_code == 1

@@ -140,3 +140,95 @@ def test_a_client_that_subscribes_to_scene_later_gets_the_scene_again():
     # the whole scene up to now: the basin and every particle emitted by t = 0.2 s
     assert ids == {"basin"} | {f"drop.{k:04d}" for k in range(21)}
     writer.close()
+
+
+def _serve_nothing():
+    from vrsim_cli.writers.live import LiveServer
+
+    refused = []
+    server = LiveServer("x")
+    server.start(0, on_refused=refused.append)
+    return server, refused
+
+
+@pytest.mark.parametrize("offered", [["foxglove.websocket.v1"], ["foxglove.sdk.v1"],
+                                     ["foxglove.websocket.v1", "foxglove.sdk.v1"]])
+def test_clients_of_either_subprotocol_name_are_served(offered):
+    """The SDK's server alone turned away clients offering only the protocol's older
+    name with "handshake failed"; the relay in front of it serves them under that name."""
+    server, refused = _serve_nothing()
+    try:
+        with websockets.connect(f"ws://127.0.0.1:{server.port}", subprotocols=offered,
+                                open_timeout=5) as ws:
+            assert ws.subprotocol == ("foxglove.sdk.v1" if "foxglove.sdk.v1" in offered
+                                      else "foxglove.websocket.v1")
+            hello = json.loads(ws.recv(timeout=5))
+            assert hello["op"] == "serverInfo" and hello["name"] == "vrsim: x"
+    finally:
+        server.close(linger=False)
+    assert refused == []
+
+
+@pytest.mark.parametrize("offered", [None, ["json"]])
+def test_other_clients_are_told_why(offered):
+    from websockets.exceptions import InvalidStatus
+
+    server, refused = _serve_nothing()
+    try:
+        with pytest.raises(InvalidStatus) as turned:
+            websockets.connect(f"ws://127.0.0.1:{server.port}", subprotocols=offered,
+                               open_timeout=5)
+    finally:
+        server.close(linger=False)
+    response = turned.value.response
+    assert response.status_code == 400
+    reason = bytes(response.body).decode()
+    assert "offer the subprotocol foxglove.sdk.v1 or foxglove.websocket.v1" in reason
+    assert f"this client offered: {'json' if offered else 'none'}" in reason
+    assert refused == [f"turned away a client: {reason}"]  # the run prints it too
+
+
+def test_live_without_o_writes_no_file_and_serves_an_old_client(tmp_path):
+    """--live without -o: nothing written (the scene's output.file stays as it was), a note
+    says so; the run is served to a client that knows only foxglove.websocket.v1."""
+    import shutil
+
+    shutil.copy(SCENARIOS / "projectile.yaml", tmp_path / "projectile.yaml")
+    (tmp_path / "projectile.mcap").write_bytes(b"an earlier run")
+    port = free_port()
+    process = subprocess.Popen(
+        [sys.executable, "-m", "vrsim_cli", "run", "projectile.yaml", "--live",
+         "--live-port", str(port), "--duration", "0.05"],
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        start, got = time.monotonic(), 0
+        while True:
+            try:
+                ws = websockets.connect(f"ws://127.0.0.1:{port}",
+                                        subprotocols=["foxglove.websocket.v1"], open_timeout=5)
+                break
+            except OSError:
+                assert process.poll() is None, process.communicate()
+                assert time.monotonic() - start < 60, "the live server never listened"
+                time.sleep(0.05)
+        with ws:
+            while True:
+                try:
+                    frame = ws.recv(timeout=20)
+                except Exception:  # noqa: BLE001 - the server closed: the run is over
+                    break
+                if isinstance(frame, str) and json.loads(frame)["op"] == "advertise":
+                    ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                        {"id": ch["id"], "channelId": ch["id"]}
+                        for ch in json.loads(frame)["channels"]]}))
+                elif not isinstance(frame, str):
+                    got += 1
+        stdout, stderr = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 0, stderr
+    assert got > 0  # messages reached the old client
+    assert (tmp_path / "projectile.mcap").read_bytes() == b"an earlier run"
+    assert "note: --live writes no file; output.file 'projectile.mcap' is left alone" in stderr
+    assert "(no output: use -o FILE)" in stdout

@@ -46,6 +46,7 @@ bodies:
 """
 
 XSD = REPO / "tests" / "data" / "junit.xsd"
+SUREFIRE_XSD = REPO / "tests" / "data" / "surefire.xsd"  # Maven Surefire's strict 3.0 report
 
 
 @pytest.fixture
@@ -232,18 +233,18 @@ def test_junit_xml_validates_and_its_counts_match(invoke, scenes, tmp_path):
     result = invoke("regress", scenes, "--golden", golden, "--jobs", "2", "--junit", report,
                     "--no-pins")
     assert result.exit_code == 1
-    xmlschema.XMLSchema(str(XSD)).validate(str(report))
-    root = ET.parse(report).getroot()
-    suites = root.findall("testsuite")
-    assert root.tag == "testsuites" and len(suites) == 1
-    cases = suites[0].findall("testcase")
+    for xsd in (XSD, SUREFIRE_XSD):  # the usual dialect and Surefire's strict one
+        xmlschema.XMLSchema(str(xsd)).validate(str(report))
+    suite = ET.parse(report).getroot()
+    assert suite.tag == "testsuite"
+    cases = suite.findall("testcase")
     failures = [c for c in cases if c.find("failure") is not None]
     errors = [c for c in cases if c.find("error") is not None]
-    for element in (root, suites[0]):
-        assert int(element.get("tests")) == len(cases) == 4
-        assert int(element.get("failures")) == len(failures) == 2
-        assert int(element.get("errors")) == len(errors) == 1
-        assert int(element.get("skipped")) == 0
+    assert int(suite.get("tests")) == len(cases) == 4
+    assert int(suite.get("failures")) == len(failures) == 2
+    assert int(suite.get("errors")) == len(errors) == 1
+    assert int(suite.get("skipped")) == 0
+    assert all(c.find("system-out").text.startswith("scene file: ") for c in cases)
     assert {c.get("name") for c in failures} == {"drop", "new"}
     assert errors[0].get("name") == "boom"
     assert "faster than light" in errors[0].find("error").get("message")
@@ -259,8 +260,9 @@ def test_markup_and_control_characters_in_a_reason_keep_the_xml_valid(tmp_path):
     reason = "moved <&> \x1b[31mred\x00 \ud800"
     result = regress.Result(plan, {"x": regress.CaseResult("x", "failed", [reason])})
     blob = regress.junit_xml(result)
-    xmlschema.XMLSchema(str(XSD)).validate(blob.decode())
-    message = ET.fromstring(blob).find("testsuite/testcase/failure").get("message")
+    for xsd in (XSD, SUREFIRE_XSD):
+        xmlschema.XMLSchema(str(xsd)).validate(blob.decode())
+    message = ET.fromstring(blob).find("testcase/failure").get("message")
     assert message == "moved <&> \ufffd[31mred\ufffd \ufffd"
 
 
@@ -275,6 +277,22 @@ def test_the_xsd_rejects_what_ci_systems_would_not_read(tmp_path):
     assert not schema.is_valid(good.replace(' name="a"', ""))
     assert not schema.is_valid(good.replace('tests="1"', 'tests="one"'))
     assert not schema.is_valid(good.replace("<failure", "<fail").replace("</failure", "</fail"))
+
+
+def test_the_surefire_xsd_is_strict_where_the_old_report_was_not():
+    """What the report wrote before and Surefire's schema refuses: a <testsuites> root, a
+    timestamp on the suite, a file on a testcase, a testcase without a time."""
+    xmlschema = pytest.importorskip("xmlschema", reason="xmlschema is in the test extra")
+    schema = xmlschema.XMLSchema(str(SUREFIRE_XSD))
+    good = ('<testsuite name="s" time="1.250" tests="1" errors="0" skipped="0" failures="1">'
+            '<testcase name="a" time="0.125"><failure message="m" type="T">text</failure>'
+            '<system-out>scene file: a.yaml</system-out></testcase></testsuite>')
+    assert schema.is_valid(good)
+    assert not schema.is_valid(f"<testsuites>{good}</testsuites>")
+    assert not schema.is_valid(good.replace('time="1.250"', 'time="1.250" timestamp="x"'))
+    assert not schema.is_valid(good.replace('name="a"', 'name="a" file="a.yaml"'))
+    assert not schema.is_valid(good.replace(' time="0.125"', ""))
+    assert not schema.is_valid(good.replace(' type="T"', ""))
 
 
 # ----------------------------------------------------------------------------- input

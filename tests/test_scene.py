@@ -360,8 +360,9 @@ def test_a_mesh_outside_the_scene_folder_gets_a_hint_that_applies(write_scene):
     out = problems(write_scene, "vrsim: 1\nduration: 1\nbodies: [{name: m, type: static, "
                                 "shape: {type: mesh, file: ../m.obj}}]\n")
     assert out == ["F:3:60: bodies[0].shape.file: path '../m.obj' leaves the scene file's "
-                   "folder (a scene reads only files in its own folder or below it; copy or "
-                   "link the file there)"]
+                   "folder (a scene reads only files in its own folder or below it; copy the "
+                   "file there: a link to it would be followed out of the folder and refused "
+                   "too)"]
 
 
 def test_output_rate_must_fit_the_step(write_scene):
@@ -373,7 +374,8 @@ def test_output_rate_must_fit_the_step(write_scene):
         output: {rate: 30}
         """)
     assert out == ["F:5:16: output.rate: 1/rate = 0.0333333 s is not a whole number of physics "
-                   "steps (dt = 0.01 s) (nearest rates that fit: 33.3333, 25, 50, 100 Hz)"]
+                   "steps (dt = 0.01 s) (nearest rates that fit: 33.33333333, 25, 50, 100 "
+                   "Hz)"]  # 33.3333 (6 digits) would be refused by this very check
 
 
 def test_missing_mesh_file(write_scene):

@@ -24,8 +24,9 @@ def main() -> None:
     except interrupts.Interrupted as exc:  # during the import of the command itself
         import sys
 
-        sys.stderr.write(f"interrupted by {interrupts.name(exc.signum)}; nothing was "
-                         f"written\n")
+        if sys.stderr is not None:  # None under `2>&-`
+            sys.stderr.write(f"interrupted by {interrupts.name(exc.signum)}; nothing was "
+                             f"written\n")
         sys.exit(exc.exit_code)
 
 

@@ -27,8 +27,6 @@ from vrsim_cli.scene.spec import scene_schema
 INTEGRATORS = tuple(scene_schema()["$defs"]["integrator"]["enum"])
 OUTPUT_FORMATS = tuple(scene_schema()["$defs"]["output"]["properties"]["format"]["enum"])
 
-PROGRESS_AFTER_S = 1.0  # show a progress bar once a run has taken this long
-
 
 def start_collector() -> None:
     """The end of start-up: the garbage collector, paused by `__main__.main` while the
@@ -126,34 +124,27 @@ class _Signals(contextlib.AbstractContextManager):
         return False
 
 
-class _Progress:
-    """A one-line progress bar on a terminal, shown only for runs longer than ~1 s."""
+class _RunProgress:
+    """The run's progress bar (text.Progress): simulated time, real-time factor, time
+    left; on a terminal, for runs longer than ~2 s, never with -q, --json or --live."""
 
     def __init__(self, model, enabled: bool):
+        from vrsim_cli.text import Progress
+
         self.model = model
-        self.enabled = enabled and sys.stderr.isatty()
-        self.start = time.perf_counter()
-        self.last = 0.0
-        self.shown = False
+        self.bar = Progress(model.duration, enabled=enabled)
 
     def __call__(self, state) -> None:
-        if not self.enabled:
+        if not self.bar.enabled:
             return
-        now = time.perf_counter()
-        if now - self.start < PROGRESS_AFTER_S or now - self.last < 0.1:
-            return
-        self.last = now
-        frac = state.step / self.model.n_steps
-        bar = "#" * int(30 * frac)
-        sys.stderr.write(f"\r[{bar:<30}] {100 * frac:5.1f}%  t = {state.t:.3f} / "
-                         f"{self.model.duration:.3f} s")
-        sys.stderr.flush()
-        self.shown = True
+        from vrsim_cli.text import significant
+
+        elapsed = self.bar.clock() - self.bar.start
+        factor = f", {significant(state.t / elapsed)}x real time" if elapsed > 0 else ""
+        self.bar.update(state.t, f"t = {state.t:.3g} / {self.model.duration:g} s{factor}")
 
     def clear(self) -> None:
-        if self.shown:
-            sys.stderr.write("\r" + " " * 70 + "\r")
-            sys.stderr.flush()
+        self.bar.clear()
 
 
 def _output_target(output: str | None, fmt: str | None):
@@ -236,6 +227,12 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         ("integrator",): (integrator, "--integrator"),
         ("output", "frames", "dir"): (frames_dir, "--frames"),
         ("tolerance",): (tolerance, "--tolerance")})
+    unwritten = None
+    if live and target is None and scene.get(("output", "file")) is not None:
+        # --live shows the run; a file is kept only when asked for with -o (as documented),
+        # so watching a scene never replaces the file an earlier run wrote
+        unwritten = scene.get(("output", "file"))
+        scene = scene.without(("output", "file"))
     model = compile_model(scene, output_override=target)
     _refuse_start_overlaps(scene, model)  # before kernels compile or outputs open
     to_stdout = model.output.path is not None and str(model.output.path) == "-"
@@ -244,10 +241,9 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         (lambda text, err=False: click.echo(text, err=err or to_stdout))
     for note in model.notes:
         say(f"note: {printable(note)}", err=True)
-    if model.dt != model.dt_requested:
-        say(f"note: dt = {model.dt_requested:g} s does not divide the frame interval "
-            f"1/{model.frame_rate:g} s; using dt = {model.dt:.6g} s "
-            f"({model.steps_per_frame} steps per frame)", err=True)
+    if unwritten is not None:
+        say(f"note: --live writes no file; output.file '{printable(str(unwritten))}' is "
+            f"left alone (add -o {printable(str(unwritten))} to keep the run too)", err=True)
     if as_json and to_stdout:
         raise click.UsageError("--json prints the summary on standard output; -o - writes "
                                "the trajectory there: give -o a file")
@@ -258,7 +254,16 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     if live:
         from vrsim_cli.writers.live import LiveServer
         server = LiveServer(model.name)
-    progress = _Progress(model, enabled=not quiet and not live and not as_json)
+    progress = _RunProgress(model, enabled=not quiet and not live and not as_json)
+    from vrsim_cli.tools import pass_through
+
+    # shapes without a collision block pass through each other: say which and when
+    watch = None if quiet and not as_json else pass_through.watch(scene, model)
+
+    def on_frame(state):
+        progress(state)
+        if watch is not None:
+            watch(state)
     state = make_state(model)
     failure = None
     writer = frames = None
@@ -290,7 +295,8 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
                 writer = open_writer(model, model.output.path, model.output.format,
                                      live=server)
                 if server is not None:
-                    server.start(live_port)  # after the writer made the channels
+                    server.start(live_port, on_refused=lambda reason: click.echo(
+                        f"live: {printable(reason)}", err=True))  # after the channels
                     click.echo(f"live: serving {printable(model.name)} on {server.url} "
                                f"(Foxglove: Open connection, Foxglove WebSocket); waiting for "
                                f"a client, Ctrl-C to stop", err=True)
@@ -300,8 +306,8 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
                                    err=True)
                         sys.exit(128 + signals.received)
                 result = run_loop(model, state, writer, realtime=realtime or live,
-                                  should_stop=stop, on_frame=progress, render=frames,
-                                  coarse_callbacks=True)
+                                  should_stop=stop, on_frame=on_frame, render=frames,
+                                  coarse_callbacks=watch is None)  # the watch: every frame
             except SimulationError as exc:
                 failure = exc  # finalise the output up to the last good state, then report
             finally:
@@ -337,8 +343,12 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
             click.echo(json.dumps(failure_summary(model, failure), indent=2))
         sys.exit(failure.exit_code)
     interrupted = signal.Signals(signals.received).name if signals.received else None
+    passed = watch.found if watch is not None else None
     report = run_summary(model, result, frames=frames, interrupted_by=interrupted,
-                         live_url=server.url if server is not None else None)
+                         live_url=server.url if server is not None else None,
+                         passes_through=passed.as_dict() if passed else None)
+    if passed is not None and not as_json:
+        say(f"note: {printable(passed.note())}", err=True)
     if as_json:
         click.echo(json.dumps(report, indent=2))
     else:
@@ -410,7 +420,9 @@ def _subsampled(frames) -> str:
 @cli.command()
 @click.argument("scene_files", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("-q", "--quiet", is_flag=True, help="Print only problems.")
-def validate(scene_files, quiet):
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object per file (a "
+              "list), problems and notes included, and nothing else.")
+def validate(scene_files, quiet, as_json):
     """Check scene files; report every problem with FILE:LINE:COL."""
     start_collector()
     from vrsim_cli.model.model import compile_model
@@ -418,6 +430,7 @@ def validate(scene_files, quiet):
     from vrsim_cli.text import plural
 
     failed = False
+    reports = []
     for file in scene_files:
         try:
             scene = load_scene(file)
@@ -425,19 +438,50 @@ def validate(scene_files, quiet):
             _refuse_start_overlaps(scene, model)
         except InputError as exc:
             failed = True
-            for line in exc.lines():
-                click.echo(f"error: {line}", err=True)
+            reports.append(_validation_report(file, None, exc.problems))
+            if not as_json:
+                for line in exc.lines():
+                    click.echo(f"error: {line}", err=True)
             continue
-        if not quiet:
+        reports.append(_validation_report(file, model, [], _validate_notes(scene)))
+        if not quiet and not as_json:
             impacts = (f", {model.response.impacts} impacts ({model.response.impacts_why})"
                        if model.response else "")
             click.echo(f"{printable(file)}: ok ({plural(model.n_body, 'body')}, "
                        f"{model.duration:g} s in {plural(model.n_steps, 'step')} of "
                        f"{model.dt:.6g} s, "
                        f"{model.integrator}{impacts})")
-            for note in model.notes:
+            for note in model.notes + _validate_notes(scene):
                 click.echo(f"note: {printable(file)}: {printable(note)}", err=True)
+    if as_json:
+        click.echo(json.dumps(reports, indent=2))
     sys.exit(EXIT_INPUT if failed else 0)
+
+
+def _validate_notes(scene) -> tuple:
+    """Notes only `validate` gives (`run` says them more precisely, after the run)."""
+    from vrsim_cli.tools.pass_through import validate_note
+
+    note = validate_note(scene.data)
+    return () if note is None else (note,)
+
+
+def _validation_report(file: str, model, problems, notes=()) -> dict:
+    """One file's result for `validate --json`: what the text says, as data (SI units)."""
+    from vrsim_cli.errors import format_key_path
+
+    report = {"file": file, "ok": model is not None,
+              "problems": [{"file": p.file, "line": p.line, "column": p.col,
+                            "key": None if p.path is None else format_key_path(p.path),
+                            "message": p.message, "hint": p.hint} for p in problems]}
+    if model is not None:
+        report.update(
+            name=model.name, bodies=int(model.n_body), duration_s=float(model.duration),
+            steps=int(model.n_steps), dt_s=float(model.dt), integrator=model.integrator,
+            impacts=model.response.impacts if model.response else None,
+            impacts_why=model.response.impacts_why if model.response else None,
+            notes=list(model.notes) + list(notes))
+    return report
 
 
 def _refuse_start_overlaps(scene, model) -> None:
@@ -490,16 +534,23 @@ def schema():
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 @_reports_errors
 def info(trajectory_file, as_json):
-    """Summarise a trajectory file: entities, duration, samples, channels."""
+    """Summarise a trajectory file: entities, duration, samples, channels.
+
+    Exit 0 when it holds trajectories, 1 when it holds none vrsim can read, 2 when it
+    cannot be read at all."""
     from vrsim_cli.tools.trajectory import format_summary, read_trajectory, summary
 
     info_ = summary(read_trajectory(trajectory_file), trajectory_file)
     if as_json:
         click.echo(json.dumps(info_, indent=2))
-        return
-    # names, topics and metadata come from the file: format_summary escapes them
-    for line in format_summary(info_):
-        click.echo(line)
+    else:  # names, topics and metadata come from the file: format_summary escapes them
+        for line in format_summary(info_):
+            click.echo(line)
+    if not info_["entities"]:  # a CI step reading it must not pass on an empty reading
+        click.echo(f"error: {printable(trajectory_file)}: no trajectory vrsim can read "
+                   f"(vrsim's /vrsim/state, foxglove.FrameTransforms or ROS 2 "
+                   f"tf2_msgs/msg/TFMessage)", err=True)
+        sys.exit(1)
 
 
 # ----------------------------------------------------------------------- collision-proxies
@@ -607,7 +658,8 @@ def walk_table_command(scene_file, fmt, exact, v_max, gamma_max, dt, position, d
 
 
 @cli.command()
-@click.option("--quick", is_flag=True, help="Fewer step sizes and repeats (under a minute).")
+@click.option("--quick", is_flag=True, help="Fewer step sizes, bodies and repeats, for a first "
+              "look (a progress bar shows the time left on a terminal).")
 @click.option("--peers", is_flag=True, help="Also run MuJoCo and PyBullet when installed "
               "(pip install 'vrsim-cli[bench]').")
 @click.option("--problem", "names", multiple=True, help="Run only this problem (repeatable).")
@@ -625,8 +677,31 @@ def bench(quick, peers, names, repeats, folder):
         if name not in known:
             raise click.BadParameter(f"unknown problem '{name}' (known: {', '.join(known)})",
                                      param_hint="--problem")
-    results = bench_module.run_bench(list(names) or None, quick=quick, peers=peers,
-                                     repeats=repeats)
+    import threading
+
+    from vrsim_cli.text import Progress
+
+    # On a terminal, after ~2 s: the problem at work and the time left. A problem can take
+    # a minute, so a thread redraws the bar (elapsed time, estimate) in between.
+    bar, now, done = Progress(1.0), [0.0, ""], threading.Event()
+
+    def step(finished, total, what):
+        now[:] = [finished / total, what]
+        bar.update(*now)
+
+    def tick():
+        while not done.wait(0.5):
+            bar.update(*now)
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    ticker.start()
+    try:
+        results = bench_module.run_bench(list(names) or None, quick=quick, peers=peers,
+                                         repeats=repeats, on_progress=step)
+    finally:
+        done.set()
+        ticker.join()
+        bar.clear()
     reps = repeats or (2 if quick else 5)
     note = (f"one warm-up run, then the best of {reps} timed runs (fewer once the timed "
             f"runs of one setting have taken {bench_module.REPEAT_BUDGET_S:g} s); only the "
@@ -716,14 +791,19 @@ def sweep(scene_files, settings, reference, folder, jobs, ray_address, resume, q
     executor = _executor(jobs, ray_address)
     total = len(plan.runs) + len(plan.references)
     count = [0]
+    from vrsim_cli.text import Progress
+
+    bar = Progress(total)  # on a terminal, after ~2 s: runs done and the time left
 
     def on_run(run, outcome):
         count[0] += 1
         line = sweep_module.progress_line(run, outcome, count[0], total)
+        bar.clear()
         if outcome is None or outcome.status != "ok":
             _echo_escaped(f"error: {line}", err=True)
         elif not quiet:
             _echo_escaped(line)
+        bar.update(count[0], f"{count[0]}/{total} runs")
 
     out = Path(folder)
     with _Signals() as signals:
@@ -732,6 +812,7 @@ def sweep(scene_files, settings, reference, folder, jobs, ray_address, resume, q
                 plan, out, executor, resume=resume, on_run=on_run,
                 should_stop=lambda: signals.received is not None)
         finally:
+            bar.clear()
             executor.close()
         written = sweep_module.write_report(plan, out, describe(executor))
     skipped = f", {result.skipped} already in the table" if result.skipped else ""
@@ -964,7 +1045,9 @@ def main() -> None:
 
 def interrupted(exc: "interrupts.Interrupted") -> None:
     """Report a signal that arrived while nothing was being written, and exit."""
-    sys.stderr.write(f"interrupted by {interrupts.name(exc.signum)}; nothing was written\n")
+    if sys.stderr is not None:  # None under `2>&-`
+        sys.stderr.write(f"interrupted by {interrupts.name(exc.signum)}; nothing was "
+                         f"written\n")
     sys.exit(exc.exit_code)
 
 

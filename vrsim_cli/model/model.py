@@ -34,6 +34,7 @@ from vrsim_cli.model.rigid import ADAPTIVE, RigidModel, compile_rigid, rigid_not
 from vrsim_cli.scene.files import (MAX_MESH_BYTES, about, file_target_problem,
                                    tum_folder_problem)
 from vrsim_cli.scene.spec import Scene
+from vrsim_cli.text import plural
 
 BODY_DYNAMIC, BODY_KINEMATIC, BODY_STATIC = 0, 1, 2
 BODY_TYPES = {"dynamic": BODY_DYNAMIC, "kinematic": BODY_KINEMATIC, "static": BODY_STATIC}
@@ -171,6 +172,11 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
     dt = frame_interval / steps_per_frame
     if abs(dt - dt_requested) <= 1e-12 * dt_requested:
         dt = dt_requested
+    # The defaults (dt 1 ms, 60 Hz) do not divide: 1 ms becomes 1/1020 s. That is said only
+    # when the user wrote both numbers; otherwise the summary's "steps of ... s" shows it.
+    time_notes = () if dt == dt_requested or "dt" not in data or "frame_rate" not in data \
+        else (f"dt = {dt_requested:g} s does not divide the frame interval 1/{frame_rate:g} "
+              f"s; using dt = {dt:.6g} s ({steps_per_frame} steps per frame)",)
     duration = float(data["duration"])
     ratio = duration / dt
     if not ratio <= MAX_STEPS:  # also catches inf and nan from extreme values
@@ -194,8 +200,11 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         problems.append(scene.problem(
             ("output", "rate"), f"1/rate = {1.0 / rate:.6g} s is not a whole number of physics "
             f"steps (dt = {dt:.6g} s)", "nearest rates that fit: "
-            + ", ".join(f"{r:g}" for r in _fitting_rates(rate, dt, frame_rate)) + " Hz"))
-    output = _output_spec(scene, out, output_override, max(every_steps, 1), problems)
+            # to 10 digits: a rate cut to 6 (145.714 for 1020/7) is refused by this check
+            + ", ".join(f"{r:.10g}" for r in _fitting_rates(rate, dt, frame_rate)) + " Hz"))
+    up, up_notes = _up_axis(data, dim)
+    output = _output_spec(scene, dict(out, up=up), output_override, max(every_steps, 1),
+                          problems)
     frames = compile_frames(scene, problems)
 
     # --- bodies, then emitted particles
@@ -335,7 +344,7 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
         body_index={name: i for i, name in enumerate(names)},
         observer=observer,
         inputs=inputs,
-        notes=_notes(data) + rigid_notes(data) + window_notes + mesh_notes,
+        notes=time_notes + up_notes + _notes(data) + rigid_notes(data) + window_notes + mesh_notes,
         # Static and kinematic bodies with analytic shapes (meshes join with collision).
         observer_obstacles=tuple(i for i, (kind, shape) in enumerate(zip(kinds, shapes))
                                  if kind != BODY_DYNAMIC and shape is not None
@@ -634,12 +643,33 @@ def _thin_tolerance(data: dict, collision, name: str, extent: float) -> tuple:
     return dataclasses.replace(collision, tolerance=tolerance), (note,)
 
 
+def _up_axis(data: dict, dim: int) -> tuple[str, tuple]:
+    """(output.up, notes): the scene's up axis as written, else the one gravity points
+    against. A z-up scene (gravity along -z) left at the default y would lie on its side
+    in Foxglove; a newcomer who wrote gravity [0, 0, -9.81] has said which way is up."""
+    out = data.get("output") or {}
+    if "up" in out:
+        return out["up"], ()
+    g = [float(x) for x in data.get("gravity", DEFAULT_GRAVITY[:dim])]
+    if dim != 3 or not any(g):
+        return "y", ()
+    axis = max(range(3), key=lambda i: abs(g[i]))
+    shown = "[" + ", ".join(f"{x:g}" for x in g) + "]"
+    if axis == 2 and g[2] < 0.0:
+        return "z", (f"output.up is z, from gravity {shown} (down is -z): MCAP output and "
+                     f"--live show the scene z-up; set output.up to choose",)
+    if axis == 1 and g[1] < 0.0:
+        return "y", ()
+    return "y", (f"gravity {shown} points along neither -y nor -z: MCAP output and --live "
+                 f"show the scene y-up, so it falls sideways there; output.up takes y or z",)
+
+
 def _notes(data: dict) -> tuple:
     """Keys that are valid but have no effect in this version, said out loud."""
     with_material = [i for i, b in enumerate(data.get("bodies") or []) if "material" in b]
     if not with_material or data.get("collision") is not None:
         return ()
-    return (f"material (restitution, friction) of {len(with_material)} body(ies), first "
+    return (f"material (restitution, friction) of {plural(len(with_material), 'body')}, first "
             f"bodies[{with_material[0]}], has no effect without a top-level collision "
             f"block: nothing collides",)
 

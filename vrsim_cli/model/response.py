@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vrsim_cli.maths.products import norm
+from vrsim_cli.text import plural
 
 NONE, STOP, SLIDE, IMPULSE = range(4)
 MODES = ("none", "stop", "slide", "impulse")
@@ -152,7 +153,7 @@ def compile_response(scene, n_body: int, gravity, tolerance: float, problems: li
                      and b.get("type", "dynamic") == "dynamic") + \
             sum(int(e.get("count", 0)) for e in data.get("emitters") or [])  # spheres too
         impacts = "located" if shaped <= AUTO_LOCATED_BODIES else "stepped"
-        why = (f"auto: {shaped} dynamic bodies with a shape, "
+        why = (f"auto: {plural(shaped, 'dynamic body', 'dynamic bodies')} with a shape, "
                f"{'at most' if impacts == 'located' else 'more than'} {AUTO_LOCATED_BODIES}")
         if impacts == "located" and thin is not None:
             impacts = "stepped"

@@ -139,6 +139,19 @@ class Scene:
         line, col = table.get(probe) or self.value_pos.get(probe) or (1, 1)
         return Problem(self.file, line, col, path, message, hint)
 
+    def without(self, path: KeyPath) -> "Scene":
+        """A copy with the key at `path` removed (as if the file did not give it)."""
+        data = json.loads(json.dumps(self.data))
+        node = data
+        for part in path[:-1]:
+            node = node.get(part) if isinstance(node, dict) else None
+            if node is None:
+                return self
+        if isinstance(node, dict):
+            node.pop(path[-1], None)
+        return Scene(self.file, self.base_dir, self.text, data, self.value_pos, self.key_pos,
+                     dict(self.overrides))
+
     def with_overrides(self, values: dict[KeyPath, tuple[Any, str]]) -> "Scene":
         """A copy with command-line values set: {key path: (value, option name)}."""
         data = json.loads(json.dumps(self.data))  # plain deep copy of JSON-like data
@@ -191,8 +204,9 @@ class Scene:
             else:
                 problems.append(self.problem(
                     path, f"path '{raw}' leaves the scene file's folder",
-                    "a scene reads only files in its own folder or below it; copy or link "
-                    "the file there"))
+                    "a scene reads only files in its own folder or below it; copy the file "
+                    "there: a link to it would be followed out of the folder and refused "
+                    "too"))
             return None
         return resolved
 

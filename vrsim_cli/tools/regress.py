@@ -469,30 +469,28 @@ def _xml_text(text: str) -> str:
 
 
 def junit_xml(result: Result, suite_name: str | None = None) -> bytes:
-    """JUnit XML: one <testsuite> in <testsuites>, one <testcase> per scene, a <failure>
-    per failed scene and an <error> per scene whose run failed; the tests / failures /
-    errors / skipped counts on both elements match the elements."""
-    import datetime
+    """JUnit XML as Maven Surefire's strict 3.0 schema has it, which the looser dialects
+    (Jenkins, GitLab, Ant) also read: one <testsuite> root, one <testcase> per scene
+    (its time required), a <failure> per failed scene and an <error> per scene whose run
+    failed, the scene file in the testcase's <system-out>; tests / failures / errors /
+    skipped on the suite match the elements. No attribute the schema does not declare
+    (timestamp, file): a strict validator refuses them."""
     import xml.etree.ElementTree as ET
 
     plan = result.plan
     counts = result.counts()
-    total_time = f"{result.wall_s:.3f}"
     name = suite_name or f"vrsim regress {plan.folder}"
-    root = ET.Element("testsuites", {"name": _xml_text(name), "tests": str(counts["tests"]),
-                                     "failures": str(counts["failures"]),
-                                     "errors": str(counts["errors"]), "skipped": "0",
-                                     "time": total_time})
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
-    suite = ET.SubElement(root, "testsuite", {
-        "name": _xml_text(name), "tests": str(counts["tests"]),
-        "failures": str(counts["failures"]), "errors": str(counts["errors"]),
-        "skipped": "0", "time": total_time, "timestamp": stamp})
+    suite = ET.Element("testsuite", {
+        "name": _xml_text(name), "time": f"{result.wall_s:.3f}",
+        "tests": str(counts["tests"]), "errors": str(counts["errors"]), "skipped": "0",
+        "failures": str(counts["failures"])})
+    properties = ET.SubElement(suite, "properties")
+    for key, value in (("folder", str(plan.folder)), ("golden", str(plan.golden))):
+        ET.SubElement(properties, "property", {"name": key, "value": _xml_text(value)})
     classname = f"vrsim.regress.{plan.folder.name or 'scenes'}"
     for case in result.cases.values():
         element = ET.SubElement(suite, "testcase", {
-            "classname": _xml_text(classname), "name": _xml_text(case.name),
-            "file": _xml_text(str(case_file(plan, case.name))),
+            "name": _xml_text(case.name), "classname": _xml_text(classname),
             "time": f"{case.time_s:.3f}"})
         if case.status != "passed":
             kind = "error" if case.status == "error" else "failure"
@@ -500,7 +498,9 @@ def junit_xml(result: Result, suite_name: str | None = None) -> bytes:
                 "message": _xml_text("; ".join(case.reasons)[:1000]),
                 "type": "RunFailed" if kind == "error" else "RegressionFailure"})
             detail.text = _xml_text("\n".join(case.reasons + case.lines))
-    return ET.tostring(root, encoding="utf-8", xml_declaration=True) + b"\n"
+        out = ET.SubElement(element, "system-out")
+        out.text = _xml_text(f"scene file: {case_file(plan, case.name)}")
+    return ET.tostring(suite, encoding="utf-8", xml_declaration=True) + b"\n"
 
 
 def case_file(plan: Plan, name: str) -> Path:

@@ -7,11 +7,11 @@ from __future__ import annotations
 
 from vrsim_cli.errors import printable
 from vrsim_cli.model.state import state_hash
-from vrsim_cli.text import plural, table
+from vrsim_cli.text import plural, significant, table
 
 
 def run_summary(model, result, *, frames=None, live_url=None, error=None,
-                interrupted_by=None) -> dict:
+                interrupted_by=None, passes_through=None) -> dict:
     """The run as JSON-ready numbers (SI units; names say the unit)."""
     state = result.state
     return {
@@ -38,6 +38,8 @@ def run_summary(model, result, *, frames=None, live_url=None, error=None,
         "live": live_url,
         "interrupted_by": interrupted_by,
         "error": None if error is None else str(error),
+        # shapes that met without a collision block (tools/pass_through): bodies, t_s, depth_m
+        "passes_through": passes_through,
     }
 
 
@@ -60,7 +62,7 @@ def format_run(summary: dict, profile: bool, realtime: bool) -> list[str]:
     lines = [f"{summary['scene']}: simulated {summary['simulated_s']:.6g} s in "
              f"{plural(summary['steps'], 'step')} of {summary['dt_s']:.6g} s, wall "
              f"{summary['wall_s']:.3f} s, "
-             f"{'inf' if factor is None else f'{factor:.1f}'}x real time{where}",
+             f"{'inf' if factor is None else significant(factor)}x real time{where}",
              f"state sha256:{summary['state_sha256']}"]
     if realtime:
         lines.append(f"realtime: missed {summary['missed_deadlines']} of "

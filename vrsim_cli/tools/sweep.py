@@ -40,6 +40,7 @@ from pathlib import Path
 
 from vrsim_cli.errors import (InputError, OutputError, Problem, did_you_mean,
                               format_key_path)
+from vrsim_cli.text import duration, plural
 from vrsim_cli.tools.jobs import KEEP_TRAJECTORY, Job, pack_model
 
 RUNS_CSV = "runs.csv"
@@ -828,7 +829,7 @@ def fronts_summary(plan: Plan, folder: Path) -> list[str]:
                 continue
             front = sweep_report.pareto(srows, col)
             shown = "; ".join(f"{sweep_report._params(r, plan.keys) or 'as is'} "
-                              f"{1e3 * float(r['wall_s']):.3g} ms {float(r[col]):.2e} {unit}"
+                              f"{duration(float(r['wall_s']))}, {float(r[col]):.3g} {unit}"
                               for r in front[:6])
             more = f"; ... ({len(front) - 6} more)" if len(front) > 6 else ""
             lines.append(f"{plan.scenes[file][0]}: Pareto front ({label}): {shown}{more}")
@@ -843,7 +844,7 @@ def progress_line(run: Run, outcome, index: int, total: int) -> str:
         return f"{head}: failed: its reference failed"
     if outcome.status != "ok":
         return f"{head}: {outcome.status}: {outcome.message}"
-    text = f"{head}: ok, {outcome.steps} steps, {1e3 * outcome.wall_s:.3g} ms"
+    text = f"{head}: ok, {plural(outcome.steps, 'step')}, {duration(outcome.wall_s)}"
     if outcome.entities:
         pos = _max([e["pos_err_m"] for e in outcome.entities])
         ang = _max([e["angle_err_rad"] for e in outcome.entities])

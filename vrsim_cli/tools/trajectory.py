@@ -102,12 +102,12 @@ def format_summary(info: dict) -> list[str]:
     if info["format"] == "mcap" and info["tracks_from"] != ["/vrsim/state"]:
         if info["tracks_from"]:
             parents = sorted(set(info["parent_frames"].values()))
-            lines.append(f"tracks from {', '.join(info['tracks_from'])} (FrameTransforms): "
+            lines.append(f"tracks from {', '.join(info['tracks_from'])} (transforms): "
                          f"position and orientation of each frame in its parent "
                          f"({', '.join(parents)}); no velocities")
         else:
-            lines.append("no trajectories: the file has no /vrsim/state and no "
-                         "foxglove.FrameTransforms channel")
+            lines.append("no trajectories: the file has no /vrsim/state, no "
+                         "foxglove.FrameTransforms and no tf2_msgs/msg/TFMessage channel")
     if info["channels"]:
         lines.append("channels:")
         lines += table(["topic", "schema", "messages"],
@@ -249,14 +249,17 @@ def _read_tum_folder(path: Path) -> Trajectory:
     return traj
 
 
-TRANSFORM_SCHEMAS = ("foxglove.FrameTransforms", "foxglove.FrameTransform")
+# ROS 2's /tf and /tf_static (tf2_msgs/msg/TFMessage, CDR): `ros2 bag record` writes them
+ROS2_TF = "tf2_msgs/msg/TFMessage"
+TRANSFORM_SCHEMAS = ("foxglove.FrameTransforms", "foxglove.FrameTransform", ROS2_TF)
 
 
 def _read_mcap(path: Path) -> Trajectory:
     """vrsim's own `/vrsim/state` when the file has it (every column, exactly); else the
     transforms of any `foxglove.FrameTransforms` or `foxglove.FrameTransform` channel, as
-    another tool writes them (positions and orientations of each child frame in its parent
-    frame; velocities NaN). Protobuf and JSON messages are both read."""
+    another tool writes them, or of ROS 2's `tf2_msgs/msg/TFMessage` (/tf, /tf_static):
+    positions and orientations of each child frame in its parent frame; velocities NaN.
+    Protobuf, JSON and (for TFMessage) CDR messages are read."""
     from mcap.reader import make_reader
 
     traj = Trajectory(str(path), "mcap")
@@ -336,6 +339,9 @@ class _Decoders:
     def _decoder(schema, channel):
         if channel.message_encoding == "json":
             return json.loads
+        if channel.message_encoding == "cdr" and schema is not None and \
+                schema.name == ROS2_TF:
+            return _ros2_tf
         if channel.message_encoding == "protobuf":
             from mcap_protobuf.decoder import DecoderFactory
 
@@ -386,6 +392,52 @@ def _transform_rows(message, log_time: int, samples: _Samples, frames: dict) -> 
         frames[name] = tf.get("parent_frame_id", "")
         samples.add(name, t, [float(p.get(c, 0.0)) for c in "xyz"]
                     + [float(q.get(c, 0.0)) for c in "wxyz"] + [np.nan] * 6)
+
+
+def _ros2_tf(data: bytes) -> dict:
+    """A ROS 2 tf2_msgs/msg/TFMessage in CDR (XCDR1, as rosbag2 writes it) as the dict
+    `_transform_rows` reads. Layout: a 4-byte encapsulation header (byte 1: 1 little-,
+    0 big-endian), then `sequence<geometry_msgs/TransformStamped>`: a uint32 count, and
+    per transform header.stamp (int32 sec, uint32 nanosec), header.frame_id and
+    child_frame_id (uint32 length with the NUL, bytes), translation x y z and rotation
+    x y z w (float64). Every primitive is aligned to its size, counted from after the
+    encapsulation header."""
+    import struct
+
+    if len(data) < 4 or data[1] not in (0, 1):
+        raise ValueError("not a CDR message")
+    order = "<" if data[1] == 1 else ">"
+    body, pos = memoryview(data)[4:], 0
+
+    def take(fmt: str, size: int, count: int = 1):
+        nonlocal pos
+        pos += -pos % size
+        values = struct.unpack_from(f"{order}{count}{fmt}", body, pos)
+        pos += size * count
+        return values
+
+    def text() -> str:
+        nonlocal pos
+        (n,) = take("I", 4)
+        raw = bytes(body[pos:pos + n])
+        if n < 1 or len(raw) != n:
+            raise ValueError("truncated string")
+        pos += n
+        return raw[:-1].decode("utf-8", "replace")
+
+    transforms = []
+    (count,) = take("I", 4)
+    if count > len(body) // 64:  # each transform takes at least 64 bytes: a corrupt count
+        raise ValueError(f"{count} transforms in {len(body)} bytes")
+    for _ in range(count):
+        sec, nsec = take("i", 4)[0], take("I", 4)[0]
+        parent, child = text(), text()
+        tx, ty, tz, qx, qy, qz, qw = take("d", 8, 7)
+        transforms.append({"timestamp": {"sec": sec, "nsec": nsec}, "parent_frame_id": parent,
+                           "child_frame_id": child,
+                           "translation": {"x": tx, "y": ty, "z": tz},
+                           "rotation": {"x": qx, "y": qy, "z": qz, "w": qw}})
+    return {"transforms": transforms}
 
 
 def _rfc3339_seconds(text: str) -> float:

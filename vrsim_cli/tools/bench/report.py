@@ -109,20 +109,25 @@ def problems() -> dict[str, Problem]:
 # ----------------------------------------------------------------------------- running
 
 
-def run_bench(names=None, quick=False, peers=False, repeats=None) -> Results:
+def run_bench(names=None, quick=False, peers=False, repeats=None,
+              on_progress=None) -> Results:
+    """Run the problems `names` (default all). `on_progress(done, total, what)` is called
+    before each (problem, engine) pair, for a progress bar."""
     repeats = repeats or (2 if quick else 5)
     chosen = problems()
     results = Results()
-    for name in names or list(chosen):
+    todo = [(name, engine, runner) for name in names or list(chosen)
+            for engine, runner in chosen[name].runners.items()
+            if engine == "vrsim" or (peers and bench_peers.available(engine))]
+    for done, (name, engine, runner) in enumerate(todo):
         problem = chosen[name]
-        for engine, runner in problem.runners.items():
-            if engine != "vrsim" and (not peers or not bench_peers.available(engine)):
-                continue
-            found = runner(quick, repeats)
-            if problem.kind == "throughput":
-                results.rows.extend(Row.of(item) for item in found)
-            else:
-                results.points.extend(found)
+        if on_progress is not None:
+            on_progress(done, len(todo), f"{name} ({engine}), {done + 1}/{len(todo)}")
+        found = runner(quick, repeats)
+        if problem.kind == "throughput":
+            results.rows.extend(Row.of(item) for item in found)
+        else:
+            results.points.extend(found)
     return results
 
 
