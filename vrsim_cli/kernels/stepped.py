@@ -378,34 +378,33 @@ def rel3(K, i, U, Wv):
     return out0, out1, out2
 
 
+@kernel(inline="always")
+def _add_impulse(K, i, j, lam, DP, DL, turning):
+    """lam along direction j of contact i into the sums DP, DL (n, 3): +lam on B, -lam
+    on A, with their torques through the arm crosses when `turning`."""
+    a, b = int(K[i, K_A]), int(K[i, K_B])
+    d, ca, cb = K_N + 3 * j, K_RNA + 6 * j, K_RNB + 6 * j
+    for c in range(3):
+        DP[b, c] += lam * K[i, d + c]
+        DP[a, c] -= lam * K[i, d + c]
+        if turning:
+            DL[b, c] += lam * K[i, cb + c]
+            DL[a, c] -= lam * K[i, ca + c]
+
+
 @kernel
 def wrench(K, k, DP, DL, DPI, DLI):
     """The impulse sums (N s, N m s; world) of all contacts, through the same arm crosses
     the velocities saw: the resting impulses into DP, DL (n, 3), the impacts' (the jumps
-    at the step's start, turning locked or not) into DPI, DLI (n, 3)."""
+    at the step's start; those with turning locked push without torque) into DPI, DLI."""
     for i in range(k):
-        a, b = int(K[i, K_A]), int(K[i, K_B])
         for j in range(3):
-            d, ca, cb = K_N + 3 * j, K_RNA + 6 * j, K_RNB + 6 * j
-            lam = K[i, K_LN + j]
-            if lam != 0.0:
-                for c in range(3):
-                    DP[b, c] += lam * K[i, d + c]
-                    DP[a, c] -= lam * K[i, d + c]
-                    DL[b, c] += lam * K[i, cb + c]
-                    DL[a, c] -= lam * K[i, ca + c]
-            lam = K[i, K_IN + j]
-            if lam != 0.0:
-                for c in range(3):
-                    DPI[b, c] += lam * K[i, d + c]
-                    DPI[a, c] -= lam * K[i, d + c]
-                    DLI[b, c] += lam * K[i, cb + c]
-                    DLI[a, c] -= lam * K[i, ca + c]
-            lam = K[i, K_LK + j]  # impacts with turning locked: no torque
-            if lam != 0.0:
-                for c in range(3):
-                    DPI[b, c] += lam * K[i, d + c]
-                    DPI[a, c] -= lam * K[i, d + c]
+            if K[i, K_LN + j] != 0.0:
+                _add_impulse(K, i, j, K[i, K_LN + j], DP, DL, True)
+            if K[i, K_IN + j] != 0.0:
+                _add_impulse(K, i, j, K[i, K_IN + j], DPI, DLI, True)
+            if K[i, K_LK + j] != 0.0:
+                _add_impulse(K, i, j, K[i, K_LK + j], DPI, DLI, False)
 
 
 @kernel
