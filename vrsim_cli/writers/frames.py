@@ -67,20 +67,8 @@ class FramesWriter:
             self.states.append(state)
 
     def cameras(self) -> list[Camera]:
-        """The camera of each kept state: the scene's frames camera if it has one, else
-        the observer's (the observer looks along its local -z, local +y up), else the
-        action camera that keeps every moving body in view."""
-        if self.spec.camera is not None:
-            return [self.spec.camera] * len(self.states)
-        observer = self.model.observer
-        if observer is not None:
-            return [Camera(eye=tuple(s.observer_pos.tolist()),
-                           forward=tuple(quat_rotate(s.observer_quat, [0.0, 0.0, -1.0]).tolist()),
-                           up=tuple(quat_rotate(s.observer_quat, [0.0, 1.0, 0.0]).tolist()),
-                           fov_deg=observer.fov_deg) for s in self.states]
-        from vrsim_cli.render import action_camera_path
-
-        return action_camera_path(self.model, self.states, self.spec.width, self.spec.height)
+        """The camera of each kept state (`picture_cameras`)."""
+        return picture_cameras(self.model, self.states, self.spec)
 
     def close(self) -> None:
         """Draw and write the kept states, finish the video, remove stale frames of an
@@ -121,6 +109,23 @@ class FramesWriter:
         self.renderer.close()
         if self.video is not None:
             self.video.abort()
+
+
+def picture_cameras(model: Model, states: list[State], spec: FramesSpec) -> list[Camera]:
+    """The camera of each of `states`: the scene's frames camera if it has one, else the
+    observer's (the observer looks along its local -z, local +y up), else the action
+    camera that keeps every moving body in view (`render.action_camera_path`)."""
+    if spec.camera is not None:
+        return [spec.camera] * len(states)
+    observer = model.observer
+    if observer is not None:
+        return [Camera(eye=tuple(s.observer_pos.tolist()),
+                       forward=tuple(quat_rotate(s.observer_quat, [0.0, 0.0, -1.0]).tolist()),
+                       up=tuple(quat_rotate(s.observer_quat, [0.0, 1.0, 0.0]).tolist()),
+                       fov_deg=observer.fov_deg) for s in states]
+    from vrsim_cli.render import action_camera_path
+
+    return action_camera_path(model, states, spec.width, spec.height)
 
 
 def frame_paths(folder: Path) -> list[Path]:
