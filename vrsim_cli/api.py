@@ -614,7 +614,7 @@ class Simulation:
         without OSMesa or PyOpenGL (docs/rendering.md)."""
         from vrsim_cli.model.frames import FramesSpec
         from vrsim_cli.render import open_renderer, time_label
-        from vrsim_cli.writers.frames import picture_cameras
+        from vrsim_cli.writers.frames import pictures
 
         spec = self.model.frames
         camera = camera if camera is not None else getattr(spec, "camera", None)
@@ -622,9 +622,10 @@ class Simulation:
         states = [s for s in self.samples if s.step < self._state.step] + [self._state]
         renderer = open_renderer(self.model, width, height, camera)
         try:
-            cameras = picture_cameras(self.model, states,
-                                      FramesSpec(Path("."), 1, width, height, camera))
-            return renderer.render(self._state, time_label(self.t), camera=cameras[-1])
+            spec = FramesSpec(Path("."), 1, width, height, camera)
+            (image,) = pictures(self.model, states, spec, renderer, time_label,
+                                last_only=True)
+            return image
         finally:
             renderer.close()
 
