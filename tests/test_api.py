@@ -359,9 +359,10 @@ def test_load_and_run_take_key_paths_as_the_sweep(tmp_path):
 def test_reprs_are_short():
     sim = vrsim_cli.simulate(SCENARIOS / "fountain.yaml")
     traj = sim.run()
-    for text in (repr(traj), repr(sim)):
+    for text in (repr(traj), repr(sim), repr(sim.model), repr(sim.state)):
         assert len(text) < 160 and "array" not in text and "\n" not in text
     assert "samples" in repr(traj) and "entities" in repr(traj) and "fountain" in repr(sim)
+    assert repr(sim.state).startswith(f"<State step {sim.model.n_steps}, t = 4 s: ")
 
 
 def test_a_trajectory_shows_as_a_plot_in_jupyter():
