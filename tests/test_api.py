@@ -395,3 +395,28 @@ def test_without_osmesa_jupyter_falls_back_to_text(monkeypatch):
     sim = vrsim_cli.simulate(SCENARIOS / "projectile.yaml")
     assert sim._repr_png_() is None
     assert "no picture" in sim._repr_html_() and "libosmesa6" in sim._repr_html_()
+
+
+@pytest.mark.parametrize("impacts", ["stepped", "located"])
+def test_a_held_force_slides_a_box_against_coulomb_friction(impacts):
+    """Through both contact paths: F = 2 mu m g along the floor leaves a = F/m - mu g =
+    mu g, so after 0.5 s v = mu g t (the stepped solver's friction is within 1e-6 of it
+    here: 1e-4 leaves room without hiding a missing or doubled force, 50 % off)."""
+    text = f"""vrsim: 1
+duration: 1.0
+frame_rate: 100
+dt: 0.005
+integrator: symplectic-euler
+collision: {{impacts: {impacts}}}
+bodies:
+  - {{name: floor, type: static, shape: {{type: plane, normal: [0, 1, 0]}}, material: {{friction: 0.5}}}}
+  - {{name: box, mass: 2, shape: {{type: box, size: [0.4, 0.2, 0.4]}}, position: [0, 0.1, 0], material: {{friction: 0.5}}}}
+"""
+    sim = vrsim_cli.simulate(text)
+    sim.step(10)  # resting
+    assert np.abs(sim.state.body_vel[1]).max() < 1e-12
+    mu, m, g = 0.5, 2.0, 9.81
+    sim.apply_force("box", [2 * mu * m * g, 0, 0])
+    sim.step(50)
+    assert sim.state.body_vel[1, 0] == pytest.approx(mu * g * 0.5, rel=1e-4)
+    assert abs(sim.state.body_vel[1, 1]) < 1e-9  # it slides, it does not lift
