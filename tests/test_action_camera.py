@@ -250,3 +250,12 @@ def test_the_frames_writer_draws_its_kept_states_with_these_cameras(tmp_path):
     assert len(recorder.shots) == len(expected) == frames.images > 1
     assert all(a is s and b == c for (a, b), (s, c) in zip(recorder.shots, expected))
     assert len(list((tmp_path / "p").glob("frame_*.png"))) == frames.images
+
+
+def test_a_springs_world_anchor_stays_in_view(tmp_path):
+    """planar-push's plate hangs on a spring to the anchor (-1.5, 0): the picture shows
+    the whole spring, the anchor inside every image."""
+    model, images = shots("planar-push", tmp_path)
+    for _, camera in images:
+        (u,), (v,), _ = pixels(camera, np.array([[-1.5, 0.0, 0.0]]))
+        assert 0 <= u <= W and 0 <= v <= H

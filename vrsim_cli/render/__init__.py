@@ -84,23 +84,44 @@ def action_camera_path(model, states: list, width: int, height: int) -> list[Cam
     min_radius = max(MIN_VIEW_RADIUS_M, min(MIN_VIEW_M / 2, VIEW_BODY_RATIO *
                                             float(radii[moving].max())))
 
+    # the world anchors of springs are framed too: a spring is seen whole, from the body
+    # to where it holds (spheres of radius 0 after the bodies)
+    anchors = spring_anchors(model)
+    n = model.n_body
+    framed_all = framed
+    if len(anchors) and len(moving) <= MAX_TRAILS:
+        pos = np.concatenate([pos, np.broadcast_to(anchors, (len(states), *anchors.shape))],
+                             axis=1)
+        radii = np.concatenate([radii, np.zeros(len(anchors))])
+        held = np.broadcast_to(framed.any(axis=1, keepdims=True), (len(states), len(anchors)))
+        framed_all = np.concatenate([framed, held], axis=1)
+
     def cameras(path_s: float) -> list[Camera]:
-        return action_cameras(pos, radii, framed, times, top_down_2d=two_d, aspect=aspect,
-                              min_radius=min_radius, path_s=path_s)
+        return action_cameras(pos, radii, framed_all, times, top_down_2d=two_d,
+                              aspect=aspect, min_radius=min_radius, path_s=path_s)
 
     following = cameras(0.0)
     if len(moving) > MAX_TRAILS:
         return following
-    base = _widths(following, pos, inner, framed, height)
+    base = _widths(following, pos[:, :n], inner, framed, height)
     for window in PATH_WINDOWS_S:
         if window >= times[-1] - times[0] and window != PATH_WINDOWS_S[0]:
             continue  # as the whole run, tried first
         tried = cameras(window)
-        wide = _widths(tried, pos, inner, framed, height)
+        wide = _widths(tried, pos[:, :n], inner, framed, height)
         good = (wide >= np.minimum(PATH_MIN_PX, PATH_SHARE * base)) & framed
         if (good.sum(axis=0)[moving] >= PATH_IMAGES * framed.sum(axis=0)[moving]).all():
             return tried  # every body large enough in nearly all its images
     return following
+
+
+def spring_anchors(model) -> np.ndarray:
+    """(a, 3) m: the distinct world anchors of the scene's springs."""
+    rigid = model.rigid
+    if rigid is None or not len(rigid.spring_b):
+        return np.zeros((0, 3))
+    world = np.asarray(rigid.spring_b) < 0
+    return np.unique(np.asarray(rigid.spring_point_b)[world], axis=0).reshape(-1, 3)
 
 
 def _widths(cameras: list, pos: np.ndarray, inner: np.ndarray, framed: np.ndarray,

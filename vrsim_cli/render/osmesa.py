@@ -26,6 +26,7 @@ BACKGROUND = (0.92, 0.93, 0.95)  # RGB in [0, 1], the clear colour
 GRID_COLOR = (0.62, 0.64, 0.68)
 SPRING_COLOR = (0.15, 0.15, 0.18)
 SPRING_WIDTH = 2.0  # px
+ANCHOR_PX = 7.0  # px, the square dot at a spring's world anchor
 TRAIL_WIDTH = 2.0  # px
 TRAIL_SHADE = 0.6  # a trail is its body's colour times this (darker, on any ground)
 LIGHT_DIR_EYE = (0.35, 0.6, 1.0, 0.0)  # towards the light, camera frame (w = 0: directional)
@@ -194,6 +195,14 @@ class OsmesaRenderer:
                 GL.glVertex3d(*a)
                 GL.glVertex3d(*b)
             GL.glEnd()
+            anchors = np.asarray(self.model.rigid.spring_b) < 0
+            if anchors.any():  # where a spring holds in the world: a square dot
+                GL.glPointSize(ANCHOR_PX)
+                GL.glBegin(GL.GL_POINTS)
+                for b in springs[anchors, 1]:
+                    GL.glVertex3d(*b)
+                GL.glEnd()
+                GL.glPointSize(1.0)
         GL.glLineWidth(TRAIL_WIDTH)
         for points, color in trails:
             if len(points) < 2:
