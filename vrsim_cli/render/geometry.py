@@ -285,7 +285,10 @@ def hull_triangles(points: np.ndarray, planar: bool):
         from scipy.spatial import ConvexHull
     except ImportError:
         return None
-    hull = ConvexHull(points)
+    try:
+        hull = ConvexHull(points)
+    except Exception:  # Qhull's precision errors on nearly flat sets: the particles alone
+        return None
     tris = points[hull.simplices]  # (f, 3, 3)
     normals = hull.equations[:, :3]
     # wind each face counter-clockwise seen from outside
