@@ -420,3 +420,27 @@ bodies:
     sim.step(50)
     assert sim.state.body_vel[1, 0] == pytest.approx(mu * g * 0.5, rel=1e-4)
     assert abs(sim.state.body_vel[1, 1]) < 1e-9  # it slides, it does not lift
+
+
+def test_emitted_particles_take_impulses_once_they_are_out():
+    """An emitted particle is a point mass after the scene's bodies, outside the rigid
+    arrays of a scene that has a rotating box: dv = J / m once it is out, no torque, a
+    held force, and nothing before it leaves."""
+    sim = vrsim_cli.simulate("""vrsim: 1
+duration: 1
+bodies: [{name: box, mass: 1, shape: {type: box, size: [0.2, 0.2, 0.2]}, position: [0, 5, 0]}]
+emitters: [{name: p, position: [1, 1, 0], direction: [0, 1, 0], speed: 1, count: 3,
+            rate: 10, mass: 0.1}]
+""")
+    assert sim.model.rigid is not None and sim.model.body_emit_step[2] > 0
+    with pytest.raises(ValueError, match="not emitted yet"):
+        sim.apply_impulse("p.0001", [0, 1, 0])
+    before = sim.state.body_vel[1].copy()
+    sim.apply_impulse("p.0000", [0, 0.05, 0])
+    assert np.allclose(sim.state.body_vel[1] - before, [0, 0.5, 0], rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match="does not rotate"):
+        sim.apply_impulse("p.0000", [1, 0, 0], point=sim.state.body_pos[1] + [0, 1, 0])
+    sim.apply_force("p.0000", [0, 0.1 * 9.81, 0])  # holds it against gravity
+    v = sim.state.body_vel[1].copy()
+    sim.step(5)
+    assert np.allclose(sim.state.body_vel[1], v, rtol=0, atol=1e-12)

@@ -314,6 +314,10 @@ class Simulation:
         self._state = self._checked(new)
         if self.samples and self.samples[-1].step > self._state.step:  # went back
             self.samples = [s for s in self.samples if s.step <= self._state.step]
+        if self._state.step == 0:
+            # back at the start: the loop sets it up as a run's first state (kinematic
+            # poses, the observer on its body); doing that twice changes nothing
+            self.started = False
 
     def _checked(self, new: State) -> State:
         """`new` validated (shapes, finite values, unit quaternions, bodies that may
@@ -458,7 +462,7 @@ class Simulation:
         if self.model.dimension == 2:
             arm[2] = 0.0
         moment = np.cross(arm, vector)
-        rotates = self.model.rigid is not None and self.model.rigid.rot_slot[i] >= 0
+        rotates = _slot(self.model, i) >= 0
         if not rotates and np.abs(moment).max() > 0.0:
             raise ValueError(f"body '{self.model.body_name[i]}' does not rotate (a point "
                              f"mass: no shape, particles or inertia), so a {what} off its "
@@ -478,8 +482,8 @@ class Simulation:
         vel[i] += J * self.model.body_inv_mass[i]
         changes = {"body_vel": vel}
         rigid = self.model.rigid
-        if rigid is not None and rigid.rot_slot[i] >= 0:
-            k = int(rigid.rot_slot[i])
+        if _slot(self.model, i) >= 0:
+            k = _slot(self.model, i)
             L = s.rot_angmom.copy()
             L[k] += moment
             R = s.rot_matrix[k]
@@ -679,6 +683,15 @@ def _plane_pad(model: Model, name: str, value) -> np.ndarray:
     return value
 
 
+def _slot(model: Model, i: int) -> int:
+    """Body i's row in the rotating bodies' arrays, -1 when it does not rotate (a point
+    mass, an emitted particle: the rigid arrays cover the scene's bodies only)."""
+    rigid = model.rigid
+    if rigid is None or i >= len(rigid.rot_slot):
+        return -1
+    return int(rigid.rot_slot[i])
+
+
 def _frozen(a: np.ndarray) -> np.ndarray:
     a = np.ascontiguousarray(a)
     a.flags.writeable = False
@@ -702,7 +715,7 @@ def _with_forces(model: Model, applied: dict) -> Model:
         force_end=_frozen(np.concatenate([model.force_end, forever])))
     rigid = model.rigid
     if rigid is not None:
-        turned = [b for b in bodies if rigid.rot_slot[b] >= 0 and applied[b][1].any()]
+        turned = [b for b in bodies if _slot(model, b) >= 0 and applied[b][1].any()]
         T = np.array([applied[b][1] for b in turned]).reshape(-1, 3)
         m = len(turned)
         no = np.zeros(k, dtype=bool)
