@@ -383,6 +383,11 @@ def test_a_simulation_shows_its_current_frame_in_jupyter():
     red = (image[..., 0] > 150) & (image[..., 1] < 90)  # the ball is red (0.9, 0.2, 0.2)
     assert red.sum() > 20
     assert "data:image/png;base64," in sim._repr_html_()
+    flat = vrsim_cli.simulate(SCENARIOS / "planar-push.yaml")  # 2D: orthographic
+    flat.step(20)
+    image = flat.render(320, 240)
+    blue = (image[..., 2] > 150) & (image[..., 0] < 120)  # the plate (0.2, 0.5, 0.9)
+    assert image.shape == (240, 320, 3) and blue.sum() > 50
 
 
 def test_without_osmesa_jupyter_falls_back_to_text(monkeypatch):

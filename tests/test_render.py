@@ -394,3 +394,26 @@ def test_2d_scenes_get_an_orthographic_camera():
     cameras = action_camera_path(sim.model, sim.samples, 640, 480)
     assert all(c.ortho > 0 and c.forward == pytest.approx((0, 0, -1)) for c in cameras)
     assert default_camera(sim.model, 640, 480).ortho > 0
+
+
+def test_a_3d_particle_bodys_hull_faces_point_outwards_through_its_particles():
+    """The hull of a non-flat particle body: every triangle's corners are particles, every
+    face's normal points away from the particles' centre, and the faces close the hull
+    (their areas' normals sum to zero). A flat body in 3D gets its polygon instead."""
+    from vrsim_cli.render.geometry import hull_triangles
+
+    import scipy.spatial  # noqa: F401  (the test extra has it; without it no hull is drawn)
+    points = np.array([[0, 0, 0], [0.2, 0, 0], [0.4, 0, 0], [0, 0.2, 0], [0, 0.4, 0.1],
+                       [0.1, 0.1, 0.05]], dtype=float)
+    verts, normals = hull_triangles(points, planar=False)
+    tris = verts.reshape(-1, 3, 3).astype(float)
+    assert all(np.min(np.linalg.norm(points - v, axis=1)) < 1e-6 for v in verts)
+    centre = points.mean(axis=0)
+    assert (np.einsum("ij,ij->i", normals[::3], tris.mean(axis=1) - centre) > 0).all()
+    area = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    assert np.abs(area.sum(axis=0)).max() < 1e-6  # closed: the area vectors cancel
+    assert (np.einsum("ij,ij->i", area, normals[::3]) > 0).all()  # wound outwards
+    flat = np.array([[0, 0, 0], [1, 0, 0], [0, 0, 1], [1, 0, 1], [0.5, 0, 0.5]], float)
+    verts, normals = hull_triangles(flat, planar=False)
+    assert np.allclose(np.abs(normals[:, 1]), 1) and np.allclose(verts[:, 1], 0)
+    assert hull_triangles(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float), False) is None
