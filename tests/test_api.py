@@ -449,3 +449,17 @@ emitters: [{name: p, position: [1, 1, 0], direction: [0, 1, 0], speed: 1, count:
     v = sim.state.body_vel[1].copy()
     sim.step(5)
     assert np.allclose(sim.state.body_vel[1], v, rtol=0, atol=1e-12)
+
+
+def test_without_the_osmesa_library_a_notebook_gets_the_text_and_the_reason():
+    """The real path, in a process where loading libOSMesa fails (conftest's hide_osmesa,
+    as on a machine without libosmesa6): no exception reaches the notebook."""
+    import os
+
+    code = ("import conftest, vrsim_cli; s = vrsim_cli.simulate("
+            "'../scenarios/projectile.yaml'); s.step(3); print(s._repr_png_()); "
+            "print(s._repr_html_())")
+    env = dict(os.environ, VRSIM_TEST_HIDE_OSMESA="1")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=REPO / "tests", env=env, check=True).stdout
+    assert out.startswith("None\n") and "no picture" in out and "libosmesa6" in out
