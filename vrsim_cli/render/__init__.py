@@ -23,7 +23,7 @@ import numpy as np
 from vrsim_cli.errors import InputError
 from vrsim_cli.maths.camera import (MIN_VIEW_RADIUS_M, Camera, action_cameras,
                                     framing_camera, projected_radius_px)
-from vrsim_cli.render.geometry import PLANE_EXTENT, Stage
+from vrsim_cli.render.geometry import PLANE_EXTENT, Stage, body_radii
 
 INSTALL_HINT = ("install OSMesa and PyOpenGL: `apt-get install libosmesa6` and "
                 "`pip install 'vrsim-cli[render]'`")
@@ -51,8 +51,8 @@ MOVED_M = 1e-6  # m: a body whose position changes more than this moves
 TURNED = 1e-6  # a body whose quaternion changes more than this (per component) moves
 LET_GO_M = 12.0  # m: this far from where the scene starts, a body has left it
 MAX_TRAILS = 12  # bodies: up to this many moving bodies get a trail and a path framing
-VIEW_BODY_RATIO = 3.0  # the action camera's view is at least this many body radii wide
-MIN_VIEW_M = 1.0  # m: ... or this wide, when that is less
+VIEW_BODY_RATIO = 3.0  # the action camera sees at least this many radii of the largest
+MIN_VIEW_M = 1.0  # moving body around its target (6 radii across), or 1 m across if less
 PATH_WINDOWS_S = (math.inf, 4.0, 2.0, 1.0, 0.5, 0.25)  # s, the path framings tried
 PATH_MIN_PX = 12.0  # px: a path framing keeps every framed body at least this wide ...
 PATH_SHARE = 0.6  # ... or this share of its width in the following framing, if smaller
@@ -65,11 +65,9 @@ def action_camera_path(model, states: list, width: int, height: int) -> list[Cam
     shows their motion: with few moving bodies (MAX_TRAILS) it frames where they are and
     where they go, over the longest window of PATH_WINDOWS_S (the whole run first) that
     keeps them large enough (PATH_MIN_PX); a still ball over a moving floor shows no
-    motion. The view is at least VIEW_BODY_RATIO radii of the largest moving body wide,
-    however small the bodies (a coin stack fills the image). A scene in which nothing
+    motion. The view is at least MIN_VIEW_M wide, or 2 VIEW_BODY_RATIO radii of the
+    largest moving body when that is less (a coin stack fills the image). A scene in which nothing
     moves gets `default_camera` throughout."""
-    from vrsim_cli.render.geometry import body_radii
-
     framed = framed_bodies(model, states)
     if not framed.any():
         return [default_camera(model, width, height)] * len(states)
@@ -141,8 +139,6 @@ def stage_for(model, states: list) -> Stage:
     observer), its grid spaced by the power of ten that gives about ten lines across it
     (a coin stack gets a centimetre grid) and wide enough to hold it, the square of a
     plane three times the action's width (at least 20 m): a thrown ball stays over it."""
-    from vrsim_cli.render.geometry import body_radii
-
     radii, _ = body_radii(model)
     solid = radii > 0
     present = np.stack([model.body_emit_step <= s.step for s in states]) & solid
@@ -208,8 +204,6 @@ def framed_bodies(model, states: list) -> np.ndarray:
     500 m/s, the fountain's particles falling through the floor): following it would
     shrink everything else to nothing.
     """
-    from vrsim_cli.render.geometry import body_radii
-
     pos = np.stack([s.body_pos for s in states])
     quat = np.stack([s.body_quat for s in states])
     steps = np.array([s.step for s in states])
@@ -227,8 +221,6 @@ def framed_bodies(model, states: list) -> np.ndarray:
 def start_box(model, state) -> tuple[np.ndarray, np.ndarray]:
     """(lo (3,), hi (3,)) m: the box around the bodies present in `state` (the first),
     each as its bounding sphere; planes are infinite and left out."""
-    from vrsim_cli.render.geometry import body_radii
-
     radii, _ = body_radii(model)
     present = np.flatnonzero((model.body_emit_step <= state.step) & (radii > 0))
     if len(present) == 0:
