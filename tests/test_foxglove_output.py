@@ -316,3 +316,27 @@ def test_a_file_without_trajectories_is_an_input_error_for_compare(invoke, tmp_p
     assert "no trajectories" in info.stdout
     result = invoke("compare", path, path)
     assert result.exit_code == 2 and "holds no trajectory" in result.stderr
+
+
+def test_a_particle_body_and_a_point_mass_are_drawn_as_in_the_frames(tmp_path):
+    """Foxglove's /scene shows planar-push's plate as its 9 particles (a 3 x 3 grid 0.5 m
+    apart about the centre of mass, each 2 x 15 % x 0.5 m across) joined by a translucent
+    hull (the 1 m square: every corner at |x|, |y| <= 0.5), and a point mass at 1 % of
+    the scene's size (two masses 50 m apart: 0.5 m radius), not 5 cm dots."""
+    model = compile_model(load_scene(SCENARIOS / "planar-push.yaml"))
+    messages, _ = mcap_messages.read(write_mcap(model, tmp_path / "p.mcap"), topics=["/scene"])
+    (plate,) = [e for e in messages["/scene"][0][1]["entities"] if e["id"] == "plate"]
+    centres = sorted((round(float(s["pose"]["position"]["x"]), 9),
+                      round(float(s["pose"]["position"]["y"]), 9)) for s in plate["spheres"])
+    assert centres == sorted((x, y) for x in (-0.5, 0.0, 0.5) for y in (-0.5, 0.0, 0.5))
+    assert all(float(s["size"]["x"]) == pytest.approx(0.15) for s in plate["spheres"])
+    (hull,) = plate["triangles"]
+    corners = np.array([[float(p[c]) for c in "xyz"] for p in hull["points"]])
+    assert np.abs(corners[:, :2]).max() == pytest.approx(0.5) and float(hull["color"]["a"]) < 1
+    pair = compile_model(parse_scene(
+        "vrsim: 1\nduration: 0.1\nframe_rate: 10\ngravity: [0, 0, 0]\nbodies:\n"
+        "  - {name: a, mass: 1, position: [0, 0, 0]}\n"
+        "  - {name: b, mass: 1, position: [30, 40, 0]}\n"))
+    messages, _ = mcap_messages.read(write_mcap(pair, tmp_path / "a.mcap"), topics=["/scene"])
+    for entity in messages["/scene"][0][1]["entities"]:
+        assert float(entity["spheres"][0]["size"]["x"]) == pytest.approx(2 * 0.01 * 50)

@@ -39,8 +39,9 @@ from vrsim_cli.model.model import Model
 from vrsim_cli.model.state import State
 from vrsim_cli.writers.atomic import AtomicFile
 from vrsim_cli.writers.entities import entity_names
-from vrsim_cli.writers.foxglove_scene import (OBSERVER_COLOR, SCENE, SCENE_TO_WORLD, WORLD, fox,
-                                              foxglove_schema, scene_entity, vrsim_schema)
+from vrsim_cli.writers.foxglove_scene import (OBSERVER_COLOR, SCENE, SCENE_TO_WORLD, WORLD,
+                                              drawn_shapes, fox, foxglove_schema,
+                                              scene_entity, vrsim_schema)
 from vrsim_cli.writers.foxglove_wire import FrameTransformsEncoder, StateEncoder
 
 class Outlet:
@@ -144,7 +145,9 @@ class McapWriter:
                                          np.zeros(n - model.n_body, dtype=np.int64)])
         self.shown = np.zeros(n, dtype=bool)
         self.entities: dict = {}  # id -> the SceneEntity last published (live re-sends)
-        self.shapes = list(model.body_shape) + [{"type": "observer"}] * (n - model.n_body)
+        # as in the rendered frames: particle bodies as their particles and hull, point
+        # masses sized to the scene
+        self.shapes = drawn_shapes(model) + [{"type": "observer"}] * (n - model.n_body)
         self.colors = model.body_color.tolist() + [OBSERVER_COLOR] * (n - model.n_body)
 
     def _channels(self, model: Model) -> None:
