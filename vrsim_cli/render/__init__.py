@@ -141,23 +141,24 @@ def stage_for(model, states: list) -> Stage:
     plane three times the action's width (at least 20 m): a thrown ball stays over it."""
     radii, _ = body_radii(model)
     solid = radii > 0
-    present = np.stack([model.body_emit_step <= s.step for s in states]) & solid
-    framed = framed_bodies(model, states) if len(states) > 1 else present
-    pos = np.stack([s.body_pos for s in states])
-    keep = framed | (present & (np.arange(len(states)) == 0)[:, None])
-    points = [pos[keep] - radii[np.nonzero(keep)[1], None],
-              pos[keep] + radii[np.nonzero(keep)[1], None]]
-    points += [np.array([s.observer_pos]) for s in states if s.observer_pos is not None]
-    points = np.concatenate(points) if points else np.zeros((0, 3))
-    if not len(points):
+    framed = framed_bodies(model, states) if len(states) > 1 else None
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for k, s in enumerate(states):  # state by state: no (k, n, 3) copies of a large run
+        keep = (framed[k] if framed is not None else np.zeros(len(radii), dtype=bool))
+        if k == 0:
+            keep = keep | ((model.body_emit_step <= s.step) & solid)
+        if keep.any():
+            lo = np.minimum(lo, (s.body_pos[keep] - radii[keep, None]).min(axis=0))
+            hi = np.maximum(hi, (s.body_pos[keep] + radii[keep, None]).max(axis=0))
+        if s.observer_pos is not None:
+            lo, hi = np.minimum(lo, s.observer_pos), np.maximum(hi, s.observer_pos)
+    if not np.isfinite(lo).all():
         return Stage()
-    lo, hi = points.min(axis=0), points.max(axis=0)
     centre = 0.5 * (lo + hi)
     two_d = model.dimension == 2
     across = hi - lo
-    extent = float(max(across[0], across[1] if two_d else across[2],
-                       across[1] if not two_d else 0.0, 1e-3))
-    step = 10.0 ** math.floor(math.log10(extent / 2.0))
+    extent = float(max((across[:2] if two_d else across).max(), 1e-3))  # m, its width
+    step = 10.0 ** math.floor(math.log10(extent / 2.0))  # 2 to 20 cells across it
     step = min(max(step, 1e-3), 100.0)
     half = step * min(GRID_MAX_LINES, max(10, math.ceil(0.75 * extent / step) + 5))
     if two_d:
