@@ -340,3 +340,23 @@ def test_a_particle_body_and_a_point_mass_are_drawn_as_in_the_frames(tmp_path):
     messages, _ = mcap_messages.read(write_mcap(pair, tmp_path / "a.mcap"), topics=["/scene"])
     for entity in messages["/scene"][0][1]["entities"]:
         assert float(entity["spheres"][0]["size"]["x"]) == pytest.approx(2 * 0.01 * 50)
+
+
+def test_springs_are_lines_between_their_ends_at_every_sample(tmp_path):
+    """planar-push's spring on /scene: at every sample a line from the plate's point
+    (-0.5, 0) (model coordinates, turned by the plate's angle theta = 2 atan2(qz, qw))
+    to the world anchor (-1.5, 0), in the scene frame."""
+    model = compile_model(load_scene(SCENARIOS / "planar-push.yaml"))
+    path = write_mcap(model, tmp_path / "p.mcap")
+    messages, _ = mcap_messages.read(path, topics=["/scene"])
+    lines = {ns: e["lines"][0]["points"] for ns, msg in messages["/scene"]
+             for e in msg["entities"] if e["id"] == "springs"}
+    track = read_trajectory(path).tracks["plate"]
+    assert len(lines) == len(track.t)
+    for k, t in enumerate(track.t):
+        a, b = lines[round(t * 1e9)]
+        qw, qz = track.quat[k, 0], track.quat[k, 3]
+        theta = 2 * math.atan2(qz, qw)
+        end = track.pos[k, :2] + [-0.5 * math.cos(theta), -0.5 * math.sin(theta)]
+        assert [float(a["x"]), float(a["y"])] == pytest.approx(end, abs=1e-12)
+        assert (float(b["x"]), float(b["y"]), float(b["z"])) == (-1.5, 0.0, 0.0)

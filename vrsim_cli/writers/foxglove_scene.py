@@ -79,6 +79,26 @@ def drawn_shapes(model) -> list:
     return out
 
 
+SPRING_COLOR = (0.15, 0.15, 0.18, 1.0)  # as in rendered frames (render.osmesa)
+SPRINGS = "springs"  # the /scene entity of every spring, in the scene frame
+
+
+def springs_entity(segments, ns: int):
+    """The foxglove.SceneEntity of the springs: a line list through their two ends
+    (segments (s, 2, 3) m, scene frame: `render.geometry.spring_segments`), 2 px wide,
+    replaced at every sample (the ends move with their bodies)."""
+    m = fox()
+    points = [m.Point3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+              for p in segments.reshape(-1, 3)]
+    line = m.LinePrimitive(type=m.LinePrimitiveLineType.LineList, pose=pose(),
+                           thickness=2.0, scale_invariant=True, points=points,
+                           color=color(SPRING_COLOR))
+    return m.SceneEntity(timestamp=stamp(ns), frame_id=SCENE, id=SPRINGS,
+                         lifetime=m.Duration(0, 0), frame_locked=False,
+                         metadata=[m.KeyValuePair(key="shape", value="springs")],
+                         lines=[line])
+
+
 def scene_entity(name: str, shape: dict | None, rgba, ns: int, scale=(1.0, 1.0, 1.0)):
     """The foxglove.SceneEntity drawing one body in its own frame, `scale` = [sx, sy, sz]
     times larger along the body's axes (keyframed scale tracks)."""
