@@ -42,7 +42,7 @@ class Recorder:
     def __init__(self):
         self.shots = []
 
-    def render(self, state, overlay=None, camera=None):
+    def render(self, state, overlay=None, camera=None, trails=()):
         self.shots.append((state, camera))
         return np.zeros((H, W, 3), dtype=np.uint8)
 
@@ -67,7 +67,15 @@ def sizes(model) -> tuple[np.ndarray, np.ndarray]:
     outer, inner = np.zeros(model.n_body), np.zeros(model.n_body)
     for i, shape in enumerate(model.body_shape):
         kind = (shape or {}).get("type")
-        if kind is None:
+        props = model.rigid.mass_properties[i] if model.rigid is not None and \
+            i < len(model.rigid.mass_properties) else None
+        if kind is None and props is not None and props.particles is not None and \
+                len(props.particles) > 1:  # particles drawn at 15 % of the closest pair
+            p = np.asarray(props.particles)
+            gaps = np.linalg.norm(p[:, None] - p[None], axis=-1)
+            r = 0.15 * gaps[gaps > 0].min()
+            outer[i], inner[i] = np.linalg.norm(p, axis=1).max() + r, r
+        elif kind is None:
             outer[i] = inner[i] = POINT_RADIUS
         elif kind == "sphere":
             outer[i] = inner[i] = shape["radius"]
@@ -99,8 +107,19 @@ def pixels(camera, points: np.ndarray):
     up = np.cross(right, forward)
     rel = np.asarray(points, dtype=float) - np.asarray(camera.eye, dtype=float)
     depth = rel @ forward
+    if camera.ortho > 0:  # 2D scenes: orthographic, `ortho` m from the centre to the top
+        scale = (H / 2) / camera.ortho
+        return W / 2 + scale * (rel @ right), H / 2 - scale * (rel @ up), depth
     focal = (H / 2) / math.tan(math.radians(camera.fov_deg) / 2)
     return W / 2 + focal * (rel @ right) / depth, H / 2 - focal * (rel @ up) / depth, depth
+
+
+def across_px(camera, radius: float, depth: float) -> float:
+    """px spanned by a sphere's diameter at `depth` (orthographic: at any depth)."""
+    if camera.ortho > 0:
+        return 2 * radius * (H / 2) / camera.ortho
+    focal = (H / 2) / math.tan(math.radians(camera.fov_deg) / 2)
+    return 2 * focal * radius / depth if depth > 0 else 0.0
 
 
 def moving_and_in_scene(model, states):
@@ -165,12 +184,14 @@ def test_every_moving_body_stays_in_view_and_large_enough(name, tmp_path):
             count += 1
             (u,), (v,), (d,) = pixels(camera, state.body_pos[i:i + 1])
             seen += d > 0 and 0 <= u <= W and 0 <= v <= H
-            across = 2 * focal * inner[i] / d if d > 0 else 0.0
+            across = across_px(camera, inner[i], d)
             # the best any camera could do: the framed bodies' box must fit the view,
-            # so the eye is at least (its largest half-side) / sin(half fov) away
+            # so the eye is at least (its largest half-side) / sin(half fov) away (an
+            # orthographic view at least that half-side high, times W/H)
             box = state.body_pos[framed[k]]
             half_side = max(0.5 * float(np.ptp(box, axis=0).max()), 1e-9)
-            best = 2 * focal * inner[i] * math.sin(half_fov) / half_side
+            best = 2 * focal * inner[i] * math.sin(half_fov) / half_side if \
+                camera.ortho == 0 else inner[i] * H / half_side * min(1.0, W / H)
             large += across > min(MIN_PX, 0.5 * best)
         report.append((model.body_name[i], seen / count, large / count))
     bad = [r for r in report if r[1] < IN_VIEW or r[2] < IN_VIEW]
@@ -181,13 +202,40 @@ def test_the_projectile_ball_is_followed_at_more_than_10_px(tmp_path):
     """The issue's case: projectile.yaml's 10 cm ball was a 3-pixel dot."""
     model, images = shots("projectile", tmp_path)
     _, inner = sizes(model)
-    focal = (H / 2) / math.tan(math.radians(images[0][1].fov_deg) / 2)
-    across = []
+    across, where = [], []
     for state, camera in images:
         u, v, d = pixels(camera, state.body_pos[:1])
         assert 0 <= u[0] <= W and 0 <= v[0] <= H
-        across.append(2 * focal * inner[0] / d[0])
+        across.append(across_px(camera, inner[0], d[0]))
+        where.append((u[0], v[0]))
     assert min(across) > MIN_PX
+    # and the ball moves in the picture: a camera locked on it showed a still ball over
+    # a tilting floor (issue 52); here it crosses a good part of the image
+    assert np.ptp(np.array(where), axis=0).max() > W / 4
+
+
+@pytest.mark.parametrize("name,body", [("bounce", "ball"), ("planar-push", "plate")])
+def test_a_lone_body_moves_in_the_picture(name, body, tmp_path):
+    """A lone moving body whose whole path fits the view at a fair size is shown over a
+    still ground: the camera frames the path, the body moves in the image (issue 52)."""
+    model, images = shots(name, tmp_path)
+    i = model.body_name.index(body)
+    eyes = np.array([c.eye for _, c in images])
+    assert np.ptp(eyes, axis=0).max() < 1e-9  # one framing of the whole run (round-off)
+    where = np.array([[p[0] for p in pixels(c, s.body_pos[i:i + 1])[:2]] for s, c in images])
+    assert np.ptp(where, axis=0).max() > H / 4
+
+
+def test_a_coin_stack_fills_a_good_part_of_the_image(tmp_path):
+    """coins.yaml's 23 mm stack was 8 px across: the view was never under 1 m wide. The
+    action camera's view is now a few times the largest moving body (a 63 x 88 mm card)."""
+    model, images = shots("coins", tmp_path)
+    _, inner = sizes(model)
+    coin = model.body_name.index("coin0")
+    radius = model.body_shape[coin]["radius"]
+    widths = [across_px(c, radius, pixels(c, s.body_pos[coin:coin + 1])[2][0])
+              for s, c in images]
+    assert min(widths) > 30, min(widths)
 
 
 def test_the_frames_writer_draws_its_kept_states_with_these_cameras(tmp_path):
@@ -202,3 +250,12 @@ def test_the_frames_writer_draws_its_kept_states_with_these_cameras(tmp_path):
     assert len(recorder.shots) == len(expected) == frames.images > 1
     assert all(a is s and b == c for (a, b), (s, c) in zip(recorder.shots, expected))
     assert len(list((tmp_path / "p").glob("frame_*.png"))) == frames.images
+
+
+def test_a_springs_world_anchor_stays_in_view(tmp_path):
+    """planar-push's plate hangs on a spring to the anchor (-1.5, 0): the picture shows
+    the whole spring, the anchor inside every image."""
+    model, images = shots("planar-push", tmp_path)
+    for _, camera in images:
+        (u,), (v,), _ = pixels(camera, np.array([[-1.5, 0.0, 0.0]]))
+        assert 0 <= u <= W and 0 <= v <= H

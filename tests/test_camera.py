@@ -85,7 +85,30 @@ def test_framing_camera_sees_every_sphere_whole(seed, top_down_2d):
     offsets = np.array([r_axis, -r_axis, camera.up, -np.array(camera.up), camera.forward,
                         -np.array(camera.forward)])
     points = (centres[:, None, :] + radii[:, None, None] * offsets).reshape(-1, 3)
-    px, depth = pinhole(camera.eye, np.add(camera.eye, camera.forward), camera.up,
-                        camera.fov_deg, width, height, points)
+    if top_down_2d:  # orthographic along -z: `ortho` m from the image centre to its top
+        assert camera.ortho > 0 and camera.forward == pytest.approx((0, 0, -1))
+        rel = points - np.asarray(camera.eye)
+        scale = (height / 2) / camera.ortho
+        r_unit = r_axis / np.linalg.norm(r_axis)
+        px = np.column_stack([width / 2 + scale * (rel @ r_unit),
+                              height / 2 - scale * (rel @ np.asarray(camera.up))])
+        depth = rel @ np.asarray(camera.forward)
+    else:
+        px, depth = pinhole(camera.eye, np.add(camera.eye, camera.forward), camera.up,
+                            camera.fov_deg, width, height, points)
     assert np.all(depth > camera.near) and np.all(depth < camera.far)
     assert np.all((px >= 0) & (px <= [width, height]))
+
+
+def test_an_orthographic_camera_maps_metres_to_pixels_at_any_depth():
+    """glOrtho: a point (x, y) m from the view axis lands at (W/2 + x s, H/2 - y s) with
+    s = (H/2) / ortho px per m, whatever its depth (2D scenes' flat view)."""
+    from vrsim_cli.maths.camera import project
+
+    camera = Camera.looking_at([1, 2, 10], [1, 2, 0], ortho=2.5, near=0.1, far=100)
+    points = np.array([[1, 2, 0], [2, 2, 0], [1, 3.5, -30], [-1, 0, 5]], dtype=float)
+    px, depth = project(camera, points, 640, 480)
+    s = 240 / 2.5
+    expected = np.column_stack([320 + s * (points[:, 0] - 1), 240 - s * (points[:, 1] - 2)])
+    np.testing.assert_allclose(px, expected, atol=1e-9)
+    np.testing.assert_allclose(depth, 10 - points[:, 2])

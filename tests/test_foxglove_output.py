@@ -384,3 +384,47 @@ def test_info_on_a_file_without_trajectories_exits_1(invoke, tmp_path):
     assert info.exit_code == 1 and "0 entities" in info.stdout
     assert "no trajectory vrsim can read" in info.stderr
     assert invoke("info", path, "--json").exit_code == 1
+
+
+def test_a_particle_body_and_a_point_mass_are_drawn_as_in_the_frames(tmp_path):
+    """Foxglove's /scene shows planar-push's plate as its 9 particles (a 3 x 3 grid 0.5 m
+    apart about the centre of mass, each 2 x 15 % x 0.5 m across) joined by a translucent
+    hull (the 1 m square: every corner at |x|, |y| <= 0.5), and a point mass at 1 % of
+    the scene's size (two masses 50 m apart: 0.5 m radius), not 5 cm dots."""
+    model = compile_model(load_scene(SCENARIOS / "planar-push.yaml"))
+    messages, _ = mcap_messages.read(write_mcap(model, tmp_path / "p.mcap"), topics=["/scene"])
+    (plate,) = [e for e in messages["/scene"][0][1]["entities"] if e["id"] == "plate"]
+    centres = sorted((round(float(s["pose"]["position"]["x"]), 9),
+                      round(float(s["pose"]["position"]["y"]), 9)) for s in plate["spheres"])
+    assert centres == sorted((x, y) for x in (-0.5, 0.0, 0.5) for y in (-0.5, 0.0, 0.5))
+    assert all(float(s["size"]["x"]) == pytest.approx(0.15) for s in plate["spheres"])
+    (hull,) = plate["triangles"]
+    corners = np.array([[float(p[c]) for c in "xyz"] for p in hull["points"]])
+    assert np.abs(corners[:, :2]).max() == pytest.approx(0.5) and float(hull["color"]["a"]) < 1
+    pair = compile_model(parse_scene(
+        "vrsim: 1\nduration: 0.1\nframe_rate: 10\ngravity: [0, 0, 0]\nbodies:\n"
+        "  - {name: a, mass: 1, position: [0, 0, 0]}\n"
+        "  - {name: b, mass: 1, position: [30, 40, 0]}\n"))
+    messages, _ = mcap_messages.read(write_mcap(pair, tmp_path / "a.mcap"), topics=["/scene"])
+    for entity in messages["/scene"][0][1]["entities"]:
+        assert float(entity["spheres"][0]["size"]["x"]) == pytest.approx(2 * 0.01 * 50)
+
+
+def test_springs_are_lines_between_their_ends_at_every_sample(tmp_path):
+    """planar-push's spring on /scene: at every sample a line from the plate's point
+    (-0.5, 0) (model coordinates, turned by the plate's angle theta = 2 atan2(qz, qw))
+    to the world anchor (-1.5, 0), in the scene frame."""
+    model = compile_model(load_scene(SCENARIOS / "planar-push.yaml"))
+    path = write_mcap(model, tmp_path / "p.mcap")
+    messages, _ = mcap_messages.read(path, topics=["/scene"])
+    lines = {ns: e["lines"][0]["points"] for ns, msg in messages["/scene"]
+             for e in msg["entities"] if e["id"] == "springs"}
+    track = read_trajectory(path).tracks["plate"]
+    assert len(lines) == len(track.t)
+    for k, t in enumerate(track.t):
+        a, b = lines[round(t * 1e9)]
+        qw, qz = track.quat[k, 0], track.quat[k, 3]
+        theta = 2 * math.atan2(qz, qw)
+        end = track.pos[k, :2] + [-0.5 * math.cos(theta), -0.5 * math.sin(theta)]
+        assert [float(a["x"]), float(a["y"])] == pytest.approx(end, abs=1e-12)
+        assert (float(b["x"]), float(b["y"]), float(b["z"])) == (-1.5, 0.0, 0.0)

@@ -273,7 +273,7 @@ def test_frames_show_keyframed_colours_and_scales(invoke, write_scene, tmp_path)
 class _Blank:
     """A renderer that draws black images (no OpenGL needed)."""
 
-    def render(self, state, overlay=None, camera=None):
+    def render(self, state, overlay=None, camera=None, trails=()):
         return np.zeros((8, 8, 3), dtype=np.uint8)
 
     def close(self):

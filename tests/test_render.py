@@ -234,3 +234,186 @@ def test_default_framing_follows_the_free_flight_in_closed_form():
     # ground y = 0 at t = (4 + sqrt(16 + 2 * 10 * 1)) / 10 = 1 -> (3, 0, 0).
     np.testing.assert_allclose(flight_points(model),
                                [[1, 0, 2], [1.2, 1.8, 0], [3, 0, 0]], atol=1e-12)
+
+
+# --------------------------------------------------------------------- showing the motion
+# Truth: an orthographic projection written here (a 2D scene seen along -z: x right, y up,
+# s = (H / 2) / ortho px per metre about the image centre) and the scene's own numbers.
+
+L_BODY = """vrsim: 1
+dimension: 2
+duration: 0.1
+frame_rate: 10
+gravity: [0, 0]
+bodies:
+  - name: ell
+    particles:
+      - {position: [0, 0], mass: 1}
+      - {position: [1, 0], mass: 1}
+      - {position: [2, 0], mass: 1}
+      - {position: [0, 1], mass: 1}
+      - {position: [0, 2], mass: 1}
+    color: [0, 0, 1]
+  - {name: weight, mass: 1, position: [4, 1], color: [1, 0, 0]}
+springs:
+  - {body: ell, point: [0, 0], anchor: [-2, -1], stiffness: 1}
+"""
+ORTHO_EYE, ORTHO_HALF = np.array([1.0, 0.5, 10.0]), 3.0
+
+
+def ortho_px(points) -> np.ndarray:
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    s = (H / 2) / ORTHO_HALF
+    return np.column_stack([W / 2 + s * (points[:, 0] - ORTHO_EYE[0]),
+                            H / 2 - s * (points[:, 1] - ORTHO_EYE[1])])
+
+
+def ortho_image(model, state, trails=()):
+    from vrsim_cli.maths.camera import Camera
+
+    camera = Camera.looking_at(ORTHO_EYE, ORTHO_EYE - [0, 0, 10], ortho=ORTHO_HALF,
+                               near=0.1, far=100)
+    renderer = open_renderer(model, W, H, camera)
+    try:
+        return renderer.render(state, trails=trails)
+    finally:
+        renderer.close()
+
+
+def colour_at(image, px) -> np.ndarray:
+    x, y = np.round(px).astype(int)
+    return image[y, x].astype(int)
+
+
+@pytest.mark.osmesa
+def test_a_particle_body_is_drawn_as_its_particles_joined_by_their_hull():
+    """The issue's 5-particle L: each particle at its projected pixel, the hull between
+    them translucent blue over the background, outside the hull the background; turned
+    by 90 degrees, the particles are where the rotation puts them (rotation shows)."""
+    from vrsim_cli.maths.spatial import quat_from_axis_angle
+
+    model = compile_model(parse_scene(L_BODY))
+    state = make_state(model)
+    ell = model.body_index["ell"]
+    local = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [0, 2, 0]], float)
+    com = local.mean(axis=0)
+    for angle in (0.0, np.pi / 2):
+        quat = state.body_quat.copy()
+        quat[ell] = quat_from_axis_angle([0, 0, 1], angle)
+        c, s = np.cos(angle), np.sin(angle)
+        R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+        world = state.body_pos[ell] + (local - com) @ R.T
+        image = ortho_image(model, state.replace(body_quat=quat))
+        for p in ortho_px(world):
+            r, g, b = colour_at(image, p)
+            assert b > 100 and r < 60 and g < 60  # an opaque blue particle
+        # inside the hull, between the particles (triangle (0,0), (1,0), (0,1)'s centre):
+        # blue blended over the background, lighter than a particle, bluer than grey
+        inside = state.body_pos[ell] + (np.array([0.3, 0.3, 0]) - com) @ R.T
+        r, g, b = colour_at(image, ortho_px(inside)[0])
+        assert b > r + 30 and 100 < r < 220
+        # beyond the L's hull (the corner the L leaves out): the background, or the grid
+        outside = state.body_pos[ell] + (np.array([1.6, 1.6, 0]) - com) @ R.T
+        r, g, b = colour_at(image, ortho_px(outside)[0])
+        assert abs(b - r) < 30  # no blue there
+
+
+@pytest.mark.osmesa
+def test_springs_are_drawn_as_lines_between_their_ends():
+    model = compile_model(parse_scene(L_BODY))
+    state = make_state(model)
+    ell = model.body_index["ell"]
+    # the spring's body end: `point` [0, 0] in model coordinates is the centre of mass
+    end = state.body_pos[ell]
+    anchor = np.array([-2.0, -1.0, 0.0])
+    image = ortho_image(model, state)
+    for f in (0.5, 0.7, 0.85):  # along the segment, outside the L's hull
+        p = ortho_px(end + f * (anchor - end))[0]
+        dark = [colour_at(image, p + d).sum() for d in ((0, 0), (0, 1), (1, 0), (0, -1))]
+        assert min(dark) < 3 * 90  # SPRING_COLOR (0.15, 0.15, 0.18), 2 px wide
+
+
+def test_point_masses_are_sized_to_the_scene():
+    from vrsim_cli.render.geometry import POINT_MASS_FRACTION, draw_list, point_mass_radius
+
+    big = compile_model(parse_scene(
+        "vrsim: 1\nduration: 0.1\ngravity: [0, 0, 0]\nbodies:\n"
+        "  - {name: a, mass: 1, position: [0, 0, 0]}\n"
+        "  - {name: b, mass: 1, position: [30, 40, 0]}\n"))  # 50 m apart
+    assert point_mass_radius(big) == pytest.approx(POINT_MASS_FRACTION * 50)
+    small = compile_model(parse_scene(
+        "vrsim: 1\nduration: 0.1\ngravity: [0, 0, 0]\nbodies:\n"
+        "  - {name: a, mass: 1, position: [0, 0, 0]}\n"
+        "  - {name: b, mass: 1, position: [0.03, 0.04, 0]}\n"))  # 5 cm apart
+    assert point_mass_radius(small) == pytest.approx(POINT_MASS_FRACTION * 0.05)
+    assert draw_list(small).part_local[0, 0, 0] == pytest.approx(5e-4)  # not 2.5 cm
+
+
+@pytest.mark.osmesa
+def test_a_trail_is_drawn_through_the_path_points():
+    model = compile_model(parse_scene(L_BODY))
+    path = np.array([[-2.0, 2.0, 0.0], [-1.0, 2.5, 0.0], [0.0, 2.6, 0.0]])
+    image = ortho_image(model, make_state(model), trails=[(path, (1.0, 0.0, 0.0))])
+    middle = ortho_px(0.5 * (path[0] + path[1]))[0]
+    reds = [colour_at(image, middle + (0, d)) for d in (-1, 0, 1)]
+    assert any(r > 100 and g < 40 and b < 40 for r, g, b in reds)  # 0.6 x red
+
+
+def test_the_ground_is_sized_to_the_action_and_its_grid_to_the_scale():
+    """projectile.yaml's ball flew past the 20 m square's edge at x = 10; coins.yaml's
+    centimetre stacks sat on a 1 m grid."""
+    import vrsim_cli
+    from vrsim_cli.render import stage_for
+
+    from conftest import SCENARIOS
+
+    sim = vrsim_cli.simulate(SCENARIOS / "projectile.yaml")
+    traj = sim.run()
+    stage = stage_for(sim.model, sim.samples)
+    centre = np.asarray(stage.centre)
+    ball = traj.position[:, traj.index("ball")]
+    assert (np.abs(ball[:, [0, 2]] - centre[[0, 2]]) < stage.plane_edge / 2).all()
+    assert (np.abs(ball[:, [0, 2]] - centre[[0, 2]]) < stage.half).all()  # grid under it
+    assert stage.step == 1.0 and stage.plane == "xz" and stage.level == 0.0
+    coins = vrsim_cli.simulate(SCENARIOS / "coins.yaml")
+    coins.run()
+    small = stage_for(coins.model, coins.samples)
+    assert small.step == 0.01  # about ten lines across the 17 cm of coins and cards
+    flat = vrsim_cli.simulate(SCENARIOS / "planar-push.yaml")
+    flat.run()
+    assert stage_for(flat.model, flat.samples).plane == "xy"  # a flat grid behind 2D
+
+
+def test_2d_scenes_get_an_orthographic_camera():
+    from conftest import SCENARIOS
+    import vrsim_cli
+    from vrsim_cli.render import action_camera_path
+
+    sim = vrsim_cli.simulate(SCENARIOS / "planar-push.yaml")
+    sim.run()
+    cameras = action_camera_path(sim.model, sim.samples, 640, 480)
+    assert all(c.ortho > 0 and c.forward == pytest.approx((0, 0, -1)) for c in cameras)
+    assert default_camera(sim.model, 640, 480).ortho > 0
+
+
+def test_a_3d_particle_bodys_hull_faces_point_outwards_through_its_particles():
+    """The hull of a non-flat particle body: every triangle's corners are particles, every
+    face's normal points away from the particles' centre, and the faces close the hull
+    (their areas' normals sum to zero). A flat body in 3D gets its polygon instead."""
+    from vrsim_cli.render.geometry import hull_triangles
+
+    import scipy.spatial  # noqa: F401  (the test extra has it; without it no hull is drawn)
+    points = np.array([[0, 0, 0], [0.2, 0, 0], [0.4, 0, 0], [0, 0.2, 0], [0, 0.4, 0.1],
+                       [0.1, 0.1, 0.05]], dtype=float)
+    verts, normals = hull_triangles(points, planar=False)
+    tris = verts.reshape(-1, 3, 3).astype(float)
+    assert all(np.min(np.linalg.norm(points - v, axis=1)) < 1e-6 for v in verts)
+    centre = points.mean(axis=0)
+    assert (np.einsum("ij,ij->i", normals[::3], tris.mean(axis=1) - centre) > 0).all()
+    area = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    assert np.abs(area.sum(axis=0)).max() < 1e-6  # closed: the area vectors cancel
+    assert (np.einsum("ij,ij->i", area, normals[::3]) > 0).all()  # wound outwards
+    flat = np.array([[0, 0, 0], [1, 0, 0], [0, 0, 1], [1, 0, 1], [0.5, 0, 0.5]], float)
+    verts, normals = hull_triangles(flat, planar=False)
+    assert np.allclose(np.abs(normals[:, 1]), 1) and np.allclose(verts[:, 1], 0)
+    assert hull_triangles(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float), False) is None

@@ -207,9 +207,11 @@ def _output_target(output: str | None, fmt: str | None):
               help="Port of --live on 127.0.0.1 (0: any free port).")
 @click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary of "
               "the run (and nothing else on stdout).")
+@click.option("--set", "settings", multiple=True, metavar="KEY=V", help="Set a scene key "
+              "(repeatable), as vrsim sweep --set: bodies.ball.mass=2, gravity=[0,-1.62,0].")
 @_reports_errors(starts_collector=False)  # its start-up ends after the kernels load
 def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, quiet,
-        frames_dir, video, tolerance, live, live_port, as_json):
+        frames_dir, video, tolerance, live, live_port, as_json, settings):
     """Run SCENE_FILE and write its trajectory."""
     from vrsim_cli.loop import prepare as prepare_kernels
     from vrsim_cli.loop import run as run_loop
@@ -222,7 +224,12 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     if target is not None and str(target[0]) != "-" and \
             target[0].resolve() == Path(scene_file).resolve():
         raise click.UsageError("the output would overwrite the scene file")
-    scene = load_scene(scene_file).with_overrides({
+    scene = load_scene(scene_file)
+    if settings:  # key paths first: the named options below win over them
+        from vrsim_cli.tools.sweep import override, parse_assignment
+
+        scene = override(scene, [parse_assignment(text) for text in settings])
+    scene = scene.with_overrides({
         ("duration",): (duration, "--duration"), ("dt",): (dt, "--dt"),
         ("integrator",): (integrator, "--integrator"),
         ("output", "frames", "dir"): (frames_dir, "--frames"),

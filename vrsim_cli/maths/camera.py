@@ -26,7 +26,8 @@ WORLD_UP = (0.0, 1.0, 0.0)  # y is up, as on the slides
 class Camera:
     """eye: (3,) m, world position; forward, up: (3,) unit vectors (up is made
     perpendicular to forward); fov_deg: vertical field of view, degrees; near, far: m,
-    clipping distances along forward."""
+    clipping distances along forward; ortho: m, half the height an orthographic camera
+    sees (glOrtho; 2D scenes), 0 for a perspective one (fov_deg then applies)."""
 
     eye: tuple
     forward: tuple
@@ -34,10 +35,12 @@ class Camera:
     fov_deg: float = DEFAULT_FOV_DEG
     near: float = DEFAULT_NEAR
     far: float = DEFAULT_FAR
+    ortho: float = 0.0
 
     @classmethod
     def looking_at(cls, eye, target, up=WORLD_UP, fov_deg: float = DEFAULT_FOV_DEG,
-                   near: float = DEFAULT_NEAR, far: float = DEFAULT_FAR) -> "Camera":
+                   near: float = DEFAULT_NEAR, far: float = DEFAULT_FAR,
+                   ortho: float = 0.0) -> "Camera":
         """A camera at `eye` looking at `target`. Raises ValueError when they coincide or
         `up` is parallel to the line of sight."""
         eye = np.asarray(eye, dtype=float)
@@ -52,7 +55,7 @@ class Camera:
         right /= np.linalg.norm(right)
         true_up = np.cross(right, forward)
         return cls(tuple(eye), tuple(forward), tuple(true_up), float(fov_deg), float(near),
-                   float(far))
+                   float(far), float(ortho))
 
     def view_matrix(self) -> np.ndarray:
         """(4, 4) world -> camera coordinates (x right, y up, looking along -z)."""
@@ -66,9 +69,15 @@ class Camera:
         return view
 
     def projection_matrix(self, aspect: float) -> np.ndarray:
-        """(4, 4) camera -> clip coordinates, as gluPerspective(fov_deg, aspect, near, far)."""
-        f = 1.0 / math.tan(math.radians(self.fov_deg) / 2.0)
+        """(4, 4) camera -> clip coordinates, as gluPerspective(fov_deg, aspect, near, far),
+        or glOrtho(-aspect h, aspect h, -h, h, near, far) with h = ortho."""
         n, fa = self.near, self.far
+        if self.ortho > 0.0:
+            h = self.ortho
+            proj = np.diag([1.0 / (aspect * h), 1.0 / h, -2.0 / (fa - n), 1.0])
+            proj[2, 3] = -(fa + n) / (fa - n)
+            return proj
+        f = 1.0 / math.tan(math.radians(self.fov_deg) / 2.0)
         proj = np.zeros((4, 4))
         proj[0, 0], proj[1, 1] = f / aspect, f
         proj[2, 2], proj[2, 3] = (fa + n) / (n - fa), 2.0 * fa * n / (n - fa)
@@ -81,9 +90,11 @@ def framing_camera(points: np.ndarray, radii: np.ndarray, *, top_down_2d: bool =
     """A camera that sees every sphere (points (n, 3) m, radii (n,) m) whole.
 
     It looks at the centre of their bounding box from above and in front (elevation 20
-    degrees, azimuth 30 degrees from +z towards +x), or straight along -z for 2D scenes,
-    at the distance where the bounding sphere of the box fits the narrower field of view:
-    a sphere of radius R seen from distance d fills a half-angle asin(R / d).
+    degrees, azimuth 30 degrees from +z towards +x) at the distance where the bounding
+    sphere of the box fits the narrower field of view (a sphere of radius R seen from
+    distance d fills a half-angle asin(R / d)); 2D scenes: straight along -z, through an
+    orthographic camera that holds the box. As small as the bodies are: a centimetre
+    scene fills the image (at least MIN_VIEW_RADIUS_M).
     """
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     radii = np.asarray(radii, dtype=float).reshape(-1)
@@ -92,24 +103,23 @@ def framing_camera(points: np.ndarray, radii: np.ndarray, *, top_down_2d: bool =
     lo = (points - radii[:, None]).min(axis=0)
     hi = (points + radii[:, None]).max(axis=0)
     centre = 0.5 * (lo + hi)
-    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 0.5)  # at least a 1 m wide view
-    half_v = math.radians(fov_deg) / 2.0
-    half = min(half_v, math.atan(aspect * math.tan(half_v)))
-    distance = 1.05 * radius / math.sin(half)  # 5 % margin
-    if top_down_2d:
-        direction = np.array([0.0, 0.0, 1.0])
-    else:
-        elevation, azimuth = math.radians(20.0), math.radians(30.0)
-        direction = np.array([math.cos(elevation) * math.sin(azimuth), math.sin(elevation),
-                              math.cos(elevation) * math.cos(azimuth)])
-    near = max(DEFAULT_NEAR, 0.01 * (distance - radius))
+    radius = max(0.5 * float(np.linalg.norm(hi - lo)), MIN_VIEW_RADIUS_M)
+    distance = fitting_distance(radius, fov_deg, aspect)
+    direction = view_direction(top_down_2d)
+    near = max(1e-3, min(DEFAULT_NEAR, 0.01 * (distance - radius)))  # coins come close
     far = max(DEFAULT_FAR, 4.0 * (distance + radius))
+    ortho = 0.0
+    if top_down_2d:
+        half = 0.5 * (hi - lo)
+        ortho = 1.05 * max(half[1], half[0] / aspect, MIN_VIEW_RADIUS_M)
     return Camera.looking_at(centre + distance * direction, centre, WORLD_UP, fov_deg,
-                             near, far)
+                             near, far, ortho)
+
+
+MIN_VIEW_RADIUS_M = 1e-3  # m: no view is narrower than 2 mm
 
 
 ACTION_WINDOW_S = 0.25  # s: the action camera smooths its motion over this before and after
-ACTION_MIN_RADIUS_M = 0.5  # m: it never comes closer than to see a 1 m wide view
 ELEVATION_DEG, AZIMUTH_DEG = 20.0, 30.0  # its direction: above and in front, as framing_camera
 
 
@@ -131,26 +141,31 @@ def fitting_distance(radius: float, fov_deg: float, aspect: float) -> float:
     return 1.05 * radius / math.sin(half)
 
 
+MAX_PATH_POINTS = 200  # times per image the path framing looks at (a stride beyond)
+
+
 def action_cameras(centres: np.ndarray, radii: np.ndarray, shown: np.ndarray,
                    times: np.ndarray, *, top_down_2d: bool = False,
                    fov_deg: float = DEFAULT_FOV_DEG, aspect: float = 4.0 / 3.0,
-                   window_s: float = ACTION_WINDOW_S,
-                   min_radius: float = ACTION_MIN_RADIUS_M) -> list[Camera]:
-    """One camera per image that sees whole every sphere shown in that image.
+                   window_s: float = ACTION_WINDOW_S, min_radius: float = 0.5,
+                   path_s: float = 0.0) -> list[Camera]:
+    """One camera per image that sees whole every sphere shown in that image, and where
+    those spheres are `path_s` before and after (their path: inf frames the whole run).
 
     centres: (k, n, 3) m, the spheres' centres in each of k images; radii: (n,) m;
     shown: (k, n) bool, the spheres to frame in each image; times: (k,) s.
 
     The camera looks from a fixed direction (`view_direction`) at a target that follows
-    the action: the middle of the box around the image's shown spheres, averaged over
-    the images within `window_s` before and after (a smooth path, centred on the action).
-    Its distance is the least at which every shown sphere of the image fits both the
-    horizontal and the vertical field of view (5 % margin), or the median of that
-    distance over the window when larger (the view widens and narrows smoothly, and a
-    body that is there for a few images only does not widen the others), and at least
+    the action: the middle of the box around the image's spheres (with their path),
+    averaged over the images within `window_s` before and after (a smooth path, centred
+    on the action). Its distance is the least at which every sphere of the image fits
+    both the horizontal and the vertical field of view (5 % margin), or the median of
+    that distance over the window when larger (the view widens and narrows smoothly, and
+    a body that is there for a few images only does not widen the others), and at least
     the distance that shows a sphere of `min_radius`. So the image's own spheres are
-    always inside, and the picture is not wasted. Images with nothing to frame keep the
-    previous camera (the first such: the origin).
+    always inside, and the picture is not wasted. 2D scenes (`top_down_2d`) get an
+    orthographic camera whose half-height is found the same way. Images with nothing to
+    frame keep the previous camera (the first such: the origin).
     """
     centres = np.asarray(centres, dtype=float).reshape(len(times), -1, 3)
     radii = np.asarray(radii, dtype=float).reshape(-1)
@@ -158,12 +173,23 @@ def action_cameras(centres: np.ndarray, radii: np.ndarray, shown: np.ndarray,
     times = np.asarray(times, dtype=float)
     k = len(times)
     has = shown.any(axis=1)
-    lo = np.where(shown[..., None], centres - radii[None, :, None], np.inf).min(axis=1)
-    hi = np.where(shown[..., None], centres + radii[None, :, None], -np.inf).max(axis=1)
-    middle = np.full((k, 3), np.nan)
-    middle[has] = 0.5 * (lo[has] + hi[has])
     start = np.searchsorted(times, times - window_s - 1e-12, side="left")
     stop = np.searchsorted(times, times + window_s + 1e-12, side="right")
+    p_start = np.searchsorted(times, times - path_s - 1e-12, side="left")
+    p_stop = np.searchsorted(times, times + path_s + 1e-12, side="right")
+
+    def spheres(i: int):
+        """(centres (m, 3), radii (m,)) of image i's bodies along their path."""
+        a, b = p_start[i], p_stop[i]
+        picked = np.unique(np.concatenate([np.arange(a, b, max(1, (b - a) // MAX_PATH_POINTS)),
+                                           [i, b - 1]]))
+        mask = shown[picked] & shown[i][None, :]  # the path of the bodies shown now
+        return centres[picked][mask], np.broadcast_to(radii, mask.shape)[mask]
+
+    middle = np.full((k, 3), np.nan)
+    for i in np.flatnonzero(has):
+        c, r = spheres(i)
+        middle[i] = 0.5 * ((c - r[:, None]).min(axis=0) + (c + r[:, None]).max(axis=0))
     back = view_direction(top_down_2d)  # from the target towards the eye
     right = np.cross(-back, WORLD_UP)
     right /= np.linalg.norm(right)
@@ -172,23 +198,35 @@ def action_cameras(centres: np.ndarray, radii: np.ndarray, shown: np.ndarray,
     half_h = math.atan(aspect * math.tan(half_v))
     shortest = fitting_distance(min_radius, fov_deg, aspect)
     target = np.full((k, 3), np.nan)
-    need = np.full(k, np.nan)  # least distance from the target that shows the image
+    need = np.full(k, np.nan)  # least distance (2D: half-height) that shows the image
+    depth = np.zeros(k)  # 2D: how far the spheres reach towards the eye
     for i in np.flatnonzero(has):
         target[i] = np.nanmean(middle[start[i]:stop[i]], axis=0)
-        rel = centres[i, shown[i]] - target[i]
-        r = radii[shown[i]]
-        need[i] = max(_fit(rel @ right, rel @ back, r, half_h),
-                      _fit(rel @ up, rel @ back, r, half_v), shortest)
+        c, r = spheres(i)
+        rel = c - target[i]
+        if top_down_2d:
+            need[i] = 1.05 * max(float(np.max(np.abs(rel @ up) + r)),
+                                 float(np.max(np.abs(rel @ right) + r)) / aspect,
+                                 min_radius)
+            depth[i] = float(np.max(rel @ back + r))
+        else:
+            need[i] = max(_fit(rel @ right, rel @ back, r, half_h),
+                          _fit(rel @ up, rel @ back, r, half_v), shortest)
     cameras: list[Camera] = []
-    aim, distance = np.zeros(3), shortest
+    aim, distance, ortho = np.zeros(3), shortest, 0.0
     for i in range(k):
         if has[i]:
             aim = target[i]
-            distance = max(need[i], float(np.nanmedian(need[start[i]:stop[i]])))
-        near_clip = max(DEFAULT_NEAR, 0.01 * distance)
+            size = max(need[i], float(np.nanmedian(need[start[i]:stop[i]])))
+            if top_down_2d:  # orthographic: the eye's distance only sets the clipping
+                ortho = size
+                distance = fitting_distance(size, fov_deg, aspect) + max(depth[i], 0.0)
+            else:
+                distance = size
+        near_clip = max(1e-3, min(DEFAULT_NEAR, 0.01 * distance))
         far_clip = max(DEFAULT_FAR, 8.0 * distance)
         cameras.append(Camera.looking_at(aim + distance * back, aim, WORLD_UP,
-                                         fov_deg, near_clip, far_clip))
+                                         fov_deg, near_clip, far_clip, ortho))
     return cameras
 
 
@@ -218,6 +256,9 @@ def projected_radius_px(camera: Camera, radius: np.ndarray, depth: np.ndarray,
                         height: int) -> np.ndarray:
     """Pixels spanned by the radius of a sphere at `depth` m (small-angle: r / d times
     the focal length in pixels, height / (2 tan(fov / 2)))."""
+    if camera.ortho > 0.0:  # orthographic: the same scale at every depth
+        return np.where(np.asarray(depth) > 0, np.asarray(radius) * height / (2.0 * camera.ortho),
+                        0.0)
     focal = height / (2.0 * math.tan(math.radians(camera.fov_deg) / 2.0))
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(depth > 0, focal * np.asarray(radius) / depth, 0.0)

@@ -137,6 +137,11 @@ class Model:
     def n_frames(self) -> int:
         return -(-self.n_steps // self.steps_per_frame)
 
+    def __repr__(self) -> str:  # one line: a notebook echoing a model gets no arrays
+        bodies = f"{self.n_body} bod{'y' if self.n_body == 1 else 'ies'}"
+        return (f"<Model {self.name!r}: {bodies}, {self.dimension}D, {self.duration:g} s in "
+                f"steps of {self.dt:g} s, {self.integrator}>")
+
 
 def _frozen(array) -> np.ndarray:
     out = np.array(array, dtype=float if not np.issubdtype(np.asarray(array).dtype,

@@ -69,6 +69,12 @@ class State:
     def replace(self, **changes) -> "State":
         return dataclasses.replace(self, **changes)
 
+    def __repr__(self) -> str:  # one line: the arrays are the fields (docs/api.md)
+        n = len(self.body_pos)
+        return (f"<State step {self.step}, t = {self.t:g} s: {n} bod"
+                f"{'y' if n == 1 else 'ies'}{', observer' if self.observer_pos is not None else ''}"
+                f"{'' if self.contacts is None else f', {len(self.contacts.depth)} contacts'}>")
+
 
 def make_state(model: Model) -> State:
     """The state at t = 0. Emitted particles wait at the nozzle with zero velocity."""

@@ -10,7 +10,7 @@ fixed-function OpenGL transforms them by the inverse transpose (and GL_NORMALIZE
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -18,7 +18,10 @@ from vrsim_cli.maths.spatial import quat_to_matrix
 from vrsim_cli.model.model import BODY_KINEMATIC
 
 SPHERE, BOX, CYLINDER, QUAD = "sphere", "box", "cylinder", "quad"
-POINT_MASS_RADIUS = 0.025  # m, drawn size of a body without a shape (as in MCAP /scene)
+POINT_MASS_RADIUS = 0.025  # m, drawn size of a lone point mass (as in MCAP /scene)
+POINT_MASS_FRACTION = 0.01  # a point mass is drawn with this fraction of the scene's size
+PARTICLE_FRACTION = 0.15  # a body's particle: this fraction of its closest particle pair
+HULL_ALPHA = 0.35  # the hull joining a body's particles is translucent: they show inside
 PLANE_EXTENT = 20.0  # m, edge of the square that stands for an infinite plane
 THIN = 1e-3  # m, thickness given to the zero z-size of 2D boxes
 
@@ -89,6 +92,57 @@ def _scale(sx, sy, sz, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class Stage:
+    """The ground the bodies are drawn over, sized to the action of a run.
+
+    centre: (3,) m, the middle of the action; half: m, half the side of the grid; step:
+    m, the grid's spacing (a power of ten that gives about ten lines across the action);
+    plane: "xz" (3D: the grid on the ground, at height `level` along y) or "xy" (2D: a
+    flat grid behind the bodies, at z = `level`); plane_edge: m, the side of the square
+    that stands for an infinite plane, centred under the action.
+    """
+
+    centre: tuple = (0.0, 0.0, 0.0)
+    half: float = 10.0
+    step: float = 1.0
+    plane: str = "xz"
+    level: float = 0.0
+    plane_edge: float = PLANE_EXTENT
+
+    def grid_lines(self) -> np.ndarray:
+        """(m, 2, 3) m: the grid's line segments."""
+        c = np.asarray(self.centre, dtype=float)
+        n = int(round(self.half / self.step))
+        u_axis, v_axis, w_axis = (0, 2, 1) if self.plane == "xz" else (0, 1, 2)
+        u0 = round(c[u_axis] / self.step) * self.step  # lines on multiples of the step
+        v0 = round(c[v_axis] / self.step) * self.step
+        ticks = np.arange(-n, n + 1) * self.step
+        out = []
+        for along, across, base_a, base_b in ((u_axis, v_axis, u0, v0),
+                                              (v_axis, u_axis, v0, u0)):
+            for t in ticks:
+                a, b = np.zeros(3), np.zeros(3)
+                a[w_axis] = b[w_axis] = self.level
+                a[along] = b[along] = base_a + t
+                a[across], b[across] = base_b - n * self.step, base_b + n * self.step
+                out.append((a, b))
+        return np.array(out)
+
+
+def sized_planes(dl: "DrawList", stage: Stage) -> np.ndarray:
+    """(n_part, 4, 4): the parts' local transforms with every plane's square resized to
+    stage.plane_edge and centred where the action's middle falls on the plane."""
+    local = dl.part_local.copy()
+    c = np.asarray(stage.centre, dtype=float)
+    for j in np.flatnonzero(dl.part_body < 0):
+        rot = local[j, :3, :3] / np.linalg.norm(local[j, :3, 0])  # unit axes of the square
+        normal, origin = rot[:, 1], local[j, :3, 3]
+        local[j, :3, :3] = rot * stage.plane_edge
+        local[j, :3, 3] = c - ((c - origin) @ normal) * normal
+    return local
+
+
+@dataclass(frozen=True)
 class DrawList:
     """What to draw for a model, one row per part.
 
@@ -102,22 +156,49 @@ class DrawList:
     part_mesh: tuple
     part_local: np.ndarray
     part_color: np.ndarray
+    # meshes made here (the hull of a particle body): name -> (vertices (n, 3) float32,
+    # normals (n, 3) float32), drawn from both sides
+    meshes: dict = field(default_factory=dict)
+
+    def half_extents(self) -> np.ndarray:
+        """(n_part, 3): the half-size of each part's unit mesh along its local axes."""
+        out = []
+        for m in self.part_mesh:
+            if m in self.meshes:
+                out.append(np.abs(self.meshes[m][0]).max(axis=0) if len(self.meshes[m][0])
+                           else np.zeros(3))
+            else:  # a mesh file is taken to span about its scale
+                out.append(UNIT_HALF_EXTENT.get(m, (1.0, 1.0, 1.0)))
+        return np.array(out, dtype=float).reshape(-1, 3)
 
 
 def draw_list(model) -> DrawList:
     """The parts of every body of `model` (a `Model`), in body order."""
-    bodies, meshes, locals_, colors = [], [], [], []
+    bodies, names, locals_, colors = [], [], [], []
 
     def add(body: int, mesh: str, local: np.ndarray) -> None:
         bodies.append(body)
-        meshes.append(mesh)
+        names.append(mesh)
         locals_.append(local)
         colors.append(model.body_color[body])
 
+    meshes: dict = {}
+    point_radius = point_mass_radius(model)
     for i, shape in enumerate(model.body_shape):
         kind = (shape or {}).get("type")
-        if kind is None:
-            add(i, SPHERE, _scale(*[POINT_MASS_RADIUS] * 3))
+        particles = body_particles(model, i) if kind is None else None
+        if particles is not None:  # each particle, and the hull that joins them
+            r = particle_radius(particles, point_radius)
+            for p in particles:
+                add(i, SPHERE, _scale(r, r, r, p))
+            hull = hull_triangles(particles, model.dimension == 2)
+            if hull is not None:
+                meshes[f"hull:{i}"] = hull
+                add(i, f"hull:{i}", np.eye(4))
+                colors[-1] = (*np.asarray(model.body_color[i])[:3],
+                              HULL_ALPHA * float(np.asarray(model.body_color[i])[3]))
+        elif kind is None:
+            add(i, SPHERE, _scale(*[point_radius] * 3))
         elif kind == "sphere":
             add(i, SPHERE, _scale(*[shape["radius"]] * 3))
         elif kind == "box":
@@ -137,8 +218,128 @@ def draw_list(model) -> DrawList:
         elif kind == "mesh":
             scale = float(shape.get("scale", 1.0))
             add(i, shape["path"], _scale(scale, scale, scale))
-    return DrawList(np.array(bodies, dtype=np.int64), tuple(meshes),
-                    np.reshape(locals_, (len(bodies), 4, 4)), np.reshape(colors, (len(bodies), 4)))
+    return DrawList(np.array(bodies, dtype=np.int64), tuple(names),
+                    np.reshape(locals_, (len(bodies), 4, 4)), np.reshape(colors, (len(bodies), 4)),
+                    meshes)
+
+
+def body_particles(model, i: int) -> np.ndarray | None:
+    """(k, 3) m: the particles of body i in its body frame (relative to the centre of
+    mass, turning with it), for a body made of two or more particles; else None."""
+    rigid = model.rigid
+    if rigid is None or i >= len(rigid.mass_properties) or rigid.mass_properties[i] is None:
+        return None
+    particles = rigid.mass_properties[i].particles
+    if particles is None or len(particles) < 2:
+        return None
+    return np.asarray(particles, dtype=float).reshape(-1, 3)
+
+
+def particle_radius(particles: np.ndarray, fallback: float) -> float:
+    """m: the drawn radius of a body's particles, PARTICLE_FRACTION of the closest pair
+    (they never touch); `fallback` when particles coincide."""
+    gaps = np.linalg.norm(particles[:, None] - particles[None], axis=-1)
+    gaps[np.diag_indices(len(particles))] = np.inf
+    closest = float(gaps.min())
+    return PARTICLE_FRACTION * closest if np.isfinite(closest) and closest > 0 else fallback
+
+
+def point_mass_radius(model) -> float:
+    """m: the drawn radius of a point mass, POINT_MASS_FRACTION of the scene's size (the
+    diagonal of the box around the bodies at the start and where their free flights go);
+    POINT_MASS_RADIUS for a scene of one point at rest."""
+    keep = np.array([(s or {}).get("type") != "plane" for s in model.body_shape], dtype=bool)
+    points = np.concatenate([np.asarray(model.body_pos0, dtype=float)[keep],
+                             flight_points(model)]).reshape(-1, 3)
+    if len(points) < 2:
+        return POINT_MASS_RADIUS
+    size = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    return POINT_MASS_FRACTION * size if size > 0 else POINT_MASS_RADIUS
+
+
+def hull_triangles(points: np.ndarray, planar: bool):
+    """Triangles (vertices (n, 3), normals (n, 3), float32) of the convex hull of
+    `points` (k, 3): for points in one plane (every 2D scene) the polygon around them in
+    that plane, else the hull's faces (scipy's Qhull, when installed). None when the
+    points span no area (two particles, a line) or, in 3D, scipy is missing (the
+    particles are then drawn alone)."""
+    centre = points.mean(axis=0)
+    _, sv, axes = np.linalg.svd(points - centre)
+    size = sv[0] if len(sv) else 0.0
+    thin = len(sv) < 3 or sv[2] <= 1e-9 * max(size, 1e-300)
+    if planar or thin:
+        normal = np.array([0.0, 0.0, 1.0]) if planar else axes[2]
+        u = axes[0] - normal * (axes[0] @ normal)
+        u /= max(np.linalg.norm(u), 1e-300)
+        v = np.cross(normal, u)
+        ring = _hull_2d(np.column_stack([(points - centre) @ u, (points - centre) @ v]))
+        if len(ring) < 3:
+            return None
+        middle = ring.mean(axis=0)
+        fan = np.array([[middle, ring[j], ring[(j + 1) % len(ring)]]
+                        for j in range(len(ring))]).reshape(-1, 2)
+        verts = centre + fan[:, :1] * u + fan[:, 1:] * v
+        return (verts.astype(np.float32),
+                np.tile(normal.astype(np.float32), (len(verts), 1)))
+    try:
+        from scipy.spatial import ConvexHull
+    except ImportError:
+        return None
+    try:
+        hull = ConvexHull(points)
+    except Exception:  # Qhull's precision errors on nearly flat sets: the particles alone
+        return None
+    tris = points[hull.simplices]  # (f, 3, 3)
+    normals = hull.equations[:, :3]
+    # wind each face counter-clockwise seen from outside
+    flip = np.einsum("ij,ij->i", np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]),
+                     normals) < 0
+    tris[flip] = tris[flip][:, ::-1]
+    return (tris.reshape(-1, 3).astype(np.float32),
+            np.repeat(normals, 3, axis=0).astype(np.float32))
+
+
+def _hull_2d(xy: np.ndarray) -> np.ndarray:
+    """(m, 2): the convex hull of points (k, 2), counter-clockwise (Andrew's monotone
+    chain); collinear points are left out."""
+    pts = np.unique(xy, axis=0)
+    if len(pts) < 3:
+        return pts
+
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower, upper = [], []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
+            lower.pop()
+        lower.append(p)
+    for p in pts[::-1]:
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
+            upper.pop()
+        upper.append(p)
+    return np.array(lower[:-1] + upper[:-1])
+
+
+def spring_segments(model, state) -> np.ndarray:
+    """(s, 2, 3) m: the two world ends of every spring in `state` (an end on a rotating
+    body turns with it; an end on a body that does not rotate keeps its world lever arm;
+    b < 0 is a world anchor), as the dynamics applies the spring force."""
+    rigid = model.rigid
+    if rigid is None or not len(rigid.spring_a):
+        return np.zeros((0, 2, 3))
+    R = quat_to_matrix(state.body_quat)
+
+    def end(body, point):
+        point = np.asarray(point, dtype=float)
+        anchor = body < 0
+        b = np.maximum(body, 0)
+        turns = rigid.rot_slot[b] >= 0
+        arm = np.where(turns[:, None], np.einsum("kij,kj->ki", R[b], point), point)
+        return np.where(anchor[:, None], point, state.body_pos[b] + arm)
+
+    return np.stack([end(rigid.spring_a, rigid.spring_point_a),
+                     end(rigid.spring_b, rigid.spring_point_b)], axis=1)
 
 
 def body_transforms(pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
@@ -160,9 +361,7 @@ def bounding_spheres(model, dl: DrawList) -> tuple[np.ndarray, np.ndarray]:
     world = body_transforms(model.body_pos0, model.body_quat0)
     keep = dl.part_body >= 0
     placed = world[dl.part_body[keep]] @ dl.part_local[keep]
-    # Half-extents of the unit primitives; a mesh is taken to span about its scale.
-    half = np.array([UNIT_HALF_EXTENT.get(m, (1.0, 1.0, 1.0)) for m in dl.part_mesh],
-                    dtype=float).reshape(-1, 3)[keep]
+    half = dl.half_extents()[keep]
     reach = np.einsum("nij,nj->ni", np.abs(placed[:, :3, :3]), half)  # world-aligned box
     centres = np.concatenate([placed[:, :3, 3] - reach, placed[:, :3, 3] + reach])
     flight = flight_points(model)
@@ -206,8 +405,7 @@ def body_radii(model) -> tuple[np.ndarray, np.ndarray]:
     dl = draw_list(model)
     bounding = np.zeros(model.n_body)
     inner = np.full(model.n_body, np.inf)
-    half = np.array([UNIT_HALF_EXTENT.get(m, (1.0, 1.0, 1.0)) for m in dl.part_mesh],
-                    dtype=float).reshape(-1, 3)
+    half = dl.half_extents()
     for body, local, h in zip(dl.part_body.tolist(), dl.part_local, half):
         if body < 0:
             continue

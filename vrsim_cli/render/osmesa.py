@@ -19,12 +19,16 @@ from OpenGL import GL, osmesa  # noqa: E402
 from vrsim_cli.maths.camera import Camera  # noqa: E402
 from vrsim_cli.model.animation import appearance  # noqa: E402
 from vrsim_cli.render.label import draw_label  # noqa: E402
-from vrsim_cli.render.geometry import (PRIMITIVES, body_transforms, draw_list)  # noqa: E402
+from vrsim_cli.render.geometry import (PRIMITIVES, Stage, body_transforms, draw_list,  # noqa: E402
+                                       sized_planes, spring_segments)
 
 BACKGROUND = (0.92, 0.93, 0.95)  # RGB in [0, 1], the clear colour
 GRID_COLOR = (0.62, 0.64, 0.68)
-GRID_EXTENT = 10  # m: grid lines from -10 to 10 m in x and z, on the ground y = 0
-GRID_STEP = 1.0  # m
+SPRING_COLOR = (0.15, 0.15, 0.18)
+SPRING_WIDTH = 2.0  # px
+ANCHOR_PX = 7.0  # px, the square dot at a spring's world anchor
+TRAIL_WIDTH = 2.0  # px
+TRAIL_SHADE = 0.6  # a trail is its body's colour times this (darker, on any ground)
 LIGHT_DIR_EYE = (0.35, 0.6, 1.0, 0.0)  # towards the light, camera frame (w = 0: directional)
 AMBIENT = 0.3
 DIFFUSE = 0.75
@@ -51,6 +55,9 @@ class OsmesaRenderer:
         self._make_current()
         self.parts = draw_list(model)
         self.opaque = self.parts.part_color[:, 3] >= 1.0
+        # until set_stage: the old 20 m ground, or a flat grid behind a 2D scene
+        self.stage = Stage(plane="xy", level=-0.01) if model.dimension == 2 else Stage()
+        self.local = sized_planes(self.parts, self.stage)
         self.lists = self._compile_lists()
         self.part_list = np.array([self.lists[m] for m in self.parts.part_mesh], dtype=np.int64)
         self._setup()
@@ -68,10 +75,21 @@ class OsmesaRenderer:
         for name in dict.fromkeys(self.parts.part_mesh):
             if name in PRIMITIVES:
                 lists[name] = _display_list(*PRIMITIVES[name](), closed=True)
+            elif name in self.parts.meshes:  # a particle body's hull: flat in 2D, both sides
+                lists[name] = _display_list(*self.parts.meshes[name], closed=False)
             else:  # a mesh file need not be closed or consistently wound: draw both sides
                 lists[name] = _display_list(*_load_mesh(name), closed=False)
-        self.grid_list = _grid_list()
+        self.grid_list = _grid_list(self.stage)
         return lists
+
+    def set_stage(self, stage: Stage) -> None:
+        """Draw the ground grid and the squares of planes sized to `stage` (the action of
+        the run: `render.stage_for`) from the next image on."""
+        self._make_current()
+        GL.glDeleteLists(self.grid_list, 1)
+        self.grid_list = _grid_list(stage)
+        self.stage = stage
+        self.local = sized_planes(self.parts, stage)
 
     def _setup(self) -> None:
         GL.glViewport(0, 0, self.width, self.height)
@@ -108,12 +126,13 @@ class OsmesaRenderer:
 
     # ------------------------------------------------------------------ drawing
 
-    def render(self, state, overlay: str | None = None,
-               camera: Camera | None = None) -> np.ndarray:
+    def render(self, state, overlay: str | None = None, camera: Camera | None = None,
+               trails=()) -> np.ndarray:
         """The image of `state`: (height, width, 3) uint8, row 0 at the top.
 
         `camera` (e.g. the observer's, which moves) replaces the renderer's camera from
-        this image on; None keeps the current one."""
+        this image on; None keeps the current one. `trails`: [(points (m, 3) m, RGB)],
+        lines drawn through the points (the path a body has come along)."""
         self._make_current()
         if camera is not None and camera != self.current:
             self._use_camera(camera)
@@ -137,8 +156,7 @@ class OsmesaRenderer:
                     if "scale" in look:
                         world[body] = world[body] @ np.diag([*look["scale"], 1.0])
         placed = np.where((parts.part_body >= 0)[:, None, None],
-                          world[np.maximum(parts.part_body, 0)] @ parts.part_local,
-                          parts.part_local)
+                          world[np.maximum(parts.part_body, 0)] @ self.local, self.local)
         modelview = self.view @ placed
         # Particles are drawn from their emission on; before that they wait out of sight.
         shown = self.model.body_emit_step[np.maximum(parts.part_body, 0)] <= state.step
@@ -148,6 +166,7 @@ class OsmesaRenderer:
         translucent = np.flatnonzero(shown & ~self.opaque)
         translucent = translucent[np.argsort(modelview[translucent, 2, 3])]
         self._draw(opaque, modelview, colors)
+        self._lines(state, trails)
         if len(translucent):
             GL.glEnable(GL.GL_BLEND)
             GL.glDepthMask(GL.GL_FALSE)
@@ -160,6 +179,41 @@ class OsmesaRenderer:
             scale = max(1, self.height // 240)
             image = draw_label(image, overlay, 4 * scale, 4 * scale, scale)
         return image
+
+    def _lines(self, state, trails) -> None:
+        """Springs (between their two ends) and trails, unlit, over the opaque bodies."""
+        springs = spring_segments(self.model, state)
+        if not len(springs) and not len(trails):
+            return
+        GL.glDisable(GL.GL_LIGHTING)
+        GL.glLoadMatrixd(self.view.T)
+        if len(springs):
+            GL.glLineWidth(SPRING_WIDTH)
+            GL.glColor3d(*SPRING_COLOR)
+            GL.glBegin(GL.GL_LINES)
+            for a, b in springs:
+                GL.glVertex3d(*a)
+                GL.glVertex3d(*b)
+            GL.glEnd()
+            anchors = np.asarray(self.model.rigid.spring_b) < 0
+            if anchors.any():  # where a spring holds in the world: a square dot
+                GL.glPointSize(ANCHOR_PX)
+                GL.glBegin(GL.GL_POINTS)
+                for b in springs[anchors, 1]:
+                    GL.glVertex3d(*b)
+                GL.glEnd()
+                GL.glPointSize(1.0)
+        GL.glLineWidth(TRAIL_WIDTH)
+        for points, color in trails:
+            if len(points) < 2:
+                continue
+            GL.glColor3d(*(TRAIL_SHADE * np.asarray(color[:3], dtype=float)))
+            GL.glBegin(GL.GL_LINE_STRIP)
+            for p in points:
+                GL.glVertex3d(*p)
+            GL.glEnd()
+        GL.glLineWidth(1.0)
+        GL.glEnable(GL.GL_LIGHTING)
 
     def _draw(self, parts: np.ndarray, modelview: np.ndarray, colors: np.ndarray) -> None:
         # Column-major for OpenGL: the transpose, made contiguous once for all parts.
@@ -195,16 +249,13 @@ def _display_list(verts: np.ndarray, norms: np.ndarray, closed: bool) -> int:
     return index
 
 
-def _grid_list() -> int:
-    ticks = np.arange(-GRID_EXTENT, GRID_EXTENT + GRID_STEP / 2, GRID_STEP)
+def _grid_list(stage: Stage) -> int:
     index = GL.glGenLists(1)
     GL.glNewList(index, GL.GL_COMPILE)
     GL.glBegin(GL.GL_LINES)
-    for v in ticks:
-        GL.glVertex3d(v, 0.0, -GRID_EXTENT)
-        GL.glVertex3d(v, 0.0, GRID_EXTENT)
-        GL.glVertex3d(-GRID_EXTENT, 0.0, v)
-        GL.glVertex3d(GRID_EXTENT, 0.0, v)
+    for a, b in stage.grid_lines():
+        GL.glVertex3d(*a)
+        GL.glVertex3d(*b)
     GL.glEnd()
     GL.glEndList()
     return index

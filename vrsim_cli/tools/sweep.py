@@ -335,6 +335,35 @@ def set_value(data, path: tuple, value) -> None:
     node[path[-1]] = value
 
 
+def parse_assignment(text: str, option: str = "--set") -> tuple[str, object]:
+    """`KEY=VALUE` (one value, YAML) -> (KEY, value): `vrsim run --set` and the Python
+    API's `load(..., set=[...])`, in the syntax of the sweep's --set."""
+    key, values = parse_setting(text, option)
+    if len(values) != 1:
+        raise InputError([Problem(f"command line ({option} {text})", 0, 0, None,
+                                  f"one value per key here, not {len(values)}",
+                                  "several values make several runs: vrsim sweep --set "
+                                  f"{text}")])
+    return key, values[0]
+
+
+def override(scene, pairs, option: str = "--set"):
+    """A copy of `scene` with each (KEY, value) of `pairs` set at its key path (as the
+    sweep's --set: `dt`, `bodies.ball.material.restitution`, `bodies[0].position`),
+    validated like the file's own values. Raises InputError naming a key that is not in
+    the scene's schema (with a did-you-mean) or a value the checks refuse."""
+    from vrsim_cli.scene.spec import Scene
+
+    data = json.loads(json.dumps(scene.data))
+    overrides = dict(scene.overrides)
+    for key, value in pairs:
+        path = resolve_key(scene, key, f"{option} {key}")
+        set_value(data, path, value)
+        overrides[path] = f"{option} {key}={canonical(value)}"
+    return Scene(scene.file, scene.base_dir, scene.text, data, scene.value_pos,
+                 scene.key_pos, overrides).with_overrides({})
+
+
 # ----------------------------------------------------------------------------- plan
 
 

@@ -13,7 +13,8 @@ from pathlib import Path
 from vrsim_cli.maths.spatial import quat_rotating
 
 WORLD, SCENE = "world", "scene"  # z-up root frame; the scene's own frame under it
-POINT_MASS_DIAMETER = 0.05  # m, how a body without a shape is drawn
+POINT_MASS_DIAMETER = 0.05  # m, a body without a shape when no drawn shape is given
+HULL_ALPHA = 0.35  # a particle body's hull, as in rendered frames (render.geometry)
 PLANE_EXTENT = 20.0  # m, side of the square that draws an infinite plane
 MESH_MEDIA_TYPES = {".stl": "model/stl", ".glb": "model/gltf-binary",
                     ".gltf": "model/gltf+json", ".obj": "model/obj",
@@ -54,13 +55,58 @@ def color(rgba):
     return fox().Color(r=float(rgba[0]), g=float(rgba[1]), b=float(rgba[2]), a=float(rgba[3]))
 
 
+def drawn_shapes(model) -> list:
+    """The shape each body is drawn with, as in the rendered frames (`render.geometry`):
+    the scene's shape; for a body without one, {"type": "particles", "points": (k, 3) m
+    in the body frame, "radius": m, "hull": triangle vertices (3 m, 3) or None} when it is
+    made of particles, else {"type": "point", "radius": m} sized to the scene."""
+    from vrsim_cli.render import geometry
+
+    point = geometry.point_mass_radius(model)
+    out = []
+    for i, shape in enumerate(model.body_shape):
+        if shape is not None:
+            out.append(shape)
+            continue
+        particles = geometry.body_particles(model, i)
+        if particles is None:
+            out.append({"type": "point", "radius": point})
+            continue
+        hull = geometry.hull_triangles(particles, model.dimension == 2)
+        out.append({"type": "particles", "points": particles,
+                    "radius": geometry.particle_radius(particles, point),
+                    "hull": None if hull is None else hull[0]})
+    return out
+
+
+SPRING_COLOR = (0.15, 0.15, 0.18, 1.0)  # as in rendered frames (render.osmesa)
+SPRINGS = "springs"  # the /scene entity of every spring, in the scene frame
+
+
+def springs_entity(segments, ns: int):
+    """The foxglove.SceneEntity of the springs: a line list through their two ends
+    (segments (s, 2, 3) m, scene frame: `render.geometry.spring_segments`), 2 px wide,
+    replaced at every sample (the ends move with their bodies)."""
+    m = fox()
+    points = [m.Point3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+              for p in segments.reshape(-1, 3)]
+    line = m.LinePrimitive(type=m.LinePrimitiveLineType.LineList, pose=pose(),
+                           thickness=2.0, scale_invariant=True, points=points,
+                           color=color(SPRING_COLOR))
+    return m.SceneEntity(timestamp=stamp(ns), frame_id=SCENE, id=SPRINGS,
+                         lifetime=m.Duration(0, 0), frame_locked=False,
+                         metadata=[m.KeyValuePair(key="shape", value="springs")],
+                         lines=[line])
+
+
 def scene_entity(name: str, shape: dict | None, rgba, ns: int, scale=(1.0, 1.0, 1.0)):
     """The foxglove.SceneEntity drawing one body in its own frame, `scale` = [sx, sy, sz]
     times larger along the body's axes (keyframed scale tracks)."""
     m = fox()
     sx, sy, sz = (float(s) for s in scale)
     c = color(rgba)
-    parts = {"arrows": [], "spheres": [], "cubes": [], "cylinders": [], "models": []}
+    parts = {"arrows": [], "spheres": [], "cubes": [], "cylinders": [], "models": [],
+             "triangles": []}
     frame, locked = name, True
 
     def sized(kind, size, offset=(0.0, 0.0, 0.0), q=(1.0, 0.0, 0.0, 0.0), **extra):
@@ -81,6 +127,18 @@ def scene_entity(name: str, shape: dict | None, rgba, ns: int, scale=(1.0, 1.0, 
         sized("spheres", [0.15] * 3)
     elif kind is None:
         sized("spheres", [POINT_MASS_DIAMETER] * 3)
+    elif kind == "point":  # sized to the scene (drawn_shapes)
+        sized("spheres", [2.0 * shape["radius"]] * 3)
+    elif kind == "particles":  # each particle, joined by their translucent hull
+        for p in shape["points"]:
+            sized("spheres", [2.0 * shape["radius"]] * 3, offset=p)
+        if shape["hull"] is not None:
+            rgb = list(rgba)[:3]
+            alpha = HULL_ALPHA * (float(rgba[3]) if len(rgba) > 3 else 1.0)
+            parts["triangles"].append(m.TriangleListPrimitive(
+                pose=pose(), points=[m.Point3(x=float(v[0]) * sx, y=float(v[1]) * sy,
+                                              z=float(v[2]) * sz) for v in shape["hull"]],
+                color=color(rgb + [alpha])))
     elif kind == "sphere":
         sized("spheres", [2.0 * shape["radius"]] * 3)
     elif kind == "box":

@@ -67,20 +67,8 @@ class FramesWriter:
             self.states.append(state)
 
     def cameras(self) -> list[Camera]:
-        """The camera of each kept state: the scene's frames camera if it has one, else
-        the observer's (the observer looks along its local -z, local +y up), else the
-        action camera that keeps every moving body in view."""
-        if self.spec.camera is not None:
-            return [self.spec.camera] * len(self.states)
-        observer = self.model.observer
-        if observer is not None:
-            return [Camera(eye=tuple(s.observer_pos.tolist()),
-                           forward=tuple(quat_rotate(s.observer_quat, [0.0, 0.0, -1.0]).tolist()),
-                           up=tuple(quat_rotate(s.observer_quat, [0.0, 1.0, 0.0]).tolist()),
-                           fov_deg=observer.fov_deg) for s in self.states]
-        from vrsim_cli.render import action_camera_path
-
-        return action_camera_path(self.model, self.states, self.spec.width, self.spec.height)
+        """The camera of each kept state (`picture_cameras`)."""
+        return picture_cameras(self.model, self.states, self.spec)
 
     def close(self) -> None:
         """Draw and write the kept states, finish the video, remove stale frames of an
@@ -88,9 +76,8 @@ class FramesWriter:
         try:
             # temporary files of runs that died, once for the folder (not once per frame)
             remove_stale_partials(self.spec.dir)
-            for state, camera in zip(self.states, self.cameras() if self.states else []):
-                image = self.renderer.render(state, self.label(state.t) if self.label else None,
-                                             camera=camera)
+            for image in pictures(self.model, self.states, self.spec, self.renderer,
+                                  self.label):
                 out = AtomicFile(self.spec.dir / FRAME_NAME.format(self.images),
                                  sweep_stale=False)
                 try:
@@ -121,6 +108,53 @@ class FramesWriter:
         self.renderer.close()
         if self.video is not None:
             self.video.abort()
+
+
+def picture_cameras(model: Model, states: list[State], spec: FramesSpec) -> list[Camera]:
+    """The camera of each of `states`: the scene's frames camera if it has one, else the
+    observer's (the observer looks along its local -z, local +y up), else the action
+    camera that keeps every moving body in view (`render.action_camera_path`)."""
+    if spec.camera is not None:
+        return [spec.camera] * len(states)
+    observer = model.observer
+    if observer is not None:
+        return [Camera(eye=tuple(s.observer_pos.tolist()),
+                       forward=tuple(quat_rotate(s.observer_quat, [0.0, 0.0, -1.0]).tolist()),
+                       up=tuple(quat_rotate(s.observer_quat, [0.0, 1.0, 0.0]).tolist()),
+                       fov_deg=observer.fov_deg) for s in states]
+    from vrsim_cli.render import action_camera_path
+
+    return action_camera_path(model, states, spec.width, spec.height)
+
+
+def pictures(model: Model, states: list[State], spec: FramesSpec, renderer, label=None,
+             last_only: bool = False):
+    """Yield the image of each of `states` (a run's kept states, or the API's samples and
+    current state): the cameras of `picture_cameras`, the ground sized to their action
+    (`render.stage_for`) and, for the few moving bodies of `render.trail_bodies`, the
+    path each has come along so far. `last_only`: only the last state's image (the
+    others still set the camera, ground and trails)."""
+    if not states:
+        return
+    import numpy as np
+
+    from vrsim_cli.render import framed_bodies, stage_for, trail_bodies
+
+    cameras = picture_cameras(model, states, spec)
+    if hasattr(renderer, "set_stage"):
+        renderer.set_stage(stage_for(model, states))
+    trailed = trail_bodies(model, states)
+    pos = np.stack([s.body_pos[trailed] for s in states])
+    # a trail runs where its body is in the scene (not after a bullet has left it)
+    since = framed_bodies(model, states)[:, trailed] if len(trailed) else \
+        np.zeros((len(states), 0), dtype=bool)
+    for i, (state, camera) in enumerate(zip(states, cameras)):
+        if last_only and i < len(states) - 1:
+            continue
+        trails = [(pos[:i + 1, k][since[:i + 1, k]], model.body_color[b][:3])
+                  for k, b in enumerate(trailed)]
+        yield renderer.render(state, label(state.t) if label else None, camera=camera,
+                              trails=trails)
 
 
 def frame_paths(folder: Path) -> list[Path]:

@@ -39,8 +39,9 @@ from vrsim_cli.model.model import Model
 from vrsim_cli.model.state import State
 from vrsim_cli.writers.atomic import AtomicFile
 from vrsim_cli.writers.entities import entity_names
-from vrsim_cli.writers.foxglove_scene import (OBSERVER_COLOR, SCENE, SCENE_TO_WORLD, WORLD, fox,
-                                              foxglove_schema, scene_entity, vrsim_schema)
+from vrsim_cli.writers.foxglove_scene import (OBSERVER_COLOR, SCENE, SCENE_TO_WORLD, SPRINGS,
+                                              WORLD, drawn_shapes, fox, foxglove_schema,
+                                              scene_entity, springs_entity, vrsim_schema)
 from vrsim_cli.writers.foxglove_wire import FrameTransformsEncoder, StateEncoder
 
 class Outlet:
@@ -144,8 +145,12 @@ class McapWriter:
                                          np.zeros(n - model.n_body, dtype=np.int64)])
         self.shown = np.zeros(n, dtype=bool)
         self.entities: dict = {}  # id -> the SceneEntity last published (live re-sends)
-        self.shapes = list(model.body_shape) + [{"type": "observer"}] * (n - model.n_body)
+        # as in the rendered frames: particle bodies as their particles and hull, point
+        # masses sized to the scene
+        self.shapes = drawn_shapes(model) + [{"type": "observer"}] * (n - model.n_body)
         self.colors = model.body_color.tolist() + [OBSERVER_COLOR] * (n - model.n_body)
+        # springs move with their bodies: one line list, replaced at every sample
+        self.springs = model.rigid is not None and len(model.rigid.spring_a) > 0
 
     def _channels(self, model: Model) -> None:
         topics = {"/tf": foxglove_schema("FrameTransforms"),
@@ -199,6 +204,11 @@ class McapWriter:
             self.publish_entities({self.names[i]: scene_entity(self.names[i], self.shapes[i],
                                                                self.colors[i], ns)
                                    for i in new.tolist()}, ns)
+        if self.springs:
+            from vrsim_cli.render.geometry import spring_segments
+
+            self.publish_entities({SPRINGS: springs_entity(
+                spring_segments(self.model, state), ns)}, ns)
         if self.live is not None and self.live.take_scene_request():
             self.live.resend_scene(self, ns)
         if self.animation is not None:
