@@ -47,17 +47,61 @@ def test_video_usage_errors_exit_2(invoke, write_scene, args, message):
     assert result.exit_code == 2 and message in result.stderr, result.stderr
 
 
-def test_missing_imageio_is_reported_before_the_run(invoke, write_scene, tmp_path,
-                                                    monkeypatch):
-    monkeypatch.setitem(sys.modules, "imageio", None)  # as if the extra were not installed
-    monkeypatch.delitem(sys.modules, "imageio.v2", raising=False)
+def test_missing_imageio_ffmpeg_is_reported_before_the_run(invoke, write_scene, tmp_path,
+                                                           monkeypatch):
+    # as if the extra were not installed
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)
     out = tmp_path / "traj.csv"
     result = invoke("run", write_scene(STATIC), "--frames", tmp_path / "f", "--video",
                     tmp_path / "v.mp4", "-o", out)
     assert result.exit_code == 2
-    assert "--video needs imageio, which is not installed: pip install 'vrsim-cli[video]'" \
-        in result.stderr
+    assert "--video needs imageio-ffmpeg, which is not installed: pip install " \
+        "'vrsim-cli[video]'" in result.stderr
     assert not out.exists() and not (tmp_path / "f").exists()
+
+
+# An encoder that fails as ffmpeg does on a full disk: it reads its input, writes part of
+# the file, says why on stderr and exits with 1.
+FULL_DISK_FFMPEG = """#!/bin/sh
+for last; do :; done
+cat > /dev/null
+printf 'truncated' > "$last"
+echo "[out#0/mp4] Error writing trailer: No space left on device" >&2
+exit 1
+"""
+
+
+@pytest.mark.osmesa
+def test_a_failing_encoder_fails_the_run_and_keeps_the_previous_video(invoke, write_scene,
+                                                                      tmp_path, monkeypatch):
+    """Issue 53: on a full disk ffmpeg said "No space left", vrsim exited 0 and replaced
+    the previous out.mp4 by a truncated file."""
+    fake = tmp_path / "ffmpeg"
+    fake.write_text(FULL_DISK_FFMPEG)
+    fake.chmod(0o755)
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(fake))  # imageio-ffmpeg's own override
+    video = tmp_path / "out.mp4"
+    video.write_bytes(b"the previous video")
+    result = invoke("run", write_scene(STATIC), "--frames", tmp_path / "f", "--video", video)
+    assert result.exit_code == 1, result.output
+    assert f"cannot write {video}: the video encoder (ffmpeg) failed: [out#0/mp4] Error " \
+        "writing trailer: No space left on device" in result.stderr
+    assert "Traceback" not in result.output
+    assert video.read_bytes() == b"the previous video"
+    assert [p.name for p in tmp_path.iterdir() if "partial" in p.name] == []
+
+
+@pytest.mark.parametrize("name", ["out.mp4", "out.gif"])
+def test_a_video_into_a_folder_that_cannot_be_written_is_a_usage_error(invoke, write_scene,
+                                                                       tmp_path, name):
+    """Issue 53: an OSError traceback. sysfs refuses new files even to root."""
+    traj = tmp_path / "traj.csv"
+    result = invoke("run", write_scene(STATIC), "--frames", tmp_path / "f", "--video",
+                    f"/sys/{name}", "-o", traj)
+    assert result.exit_code == 2, result.output
+    assert "--video: folder '/sys' is not writable" in result.stderr
+    assert "Traceback" not in result.output
+    assert not traj.exists() and not (tmp_path / "f").exists()
 
 
 @pytest.mark.osmesa
