@@ -489,6 +489,36 @@ def mass_properties(scene_file, as_json):
             click.echo(printable(line))  # body names come from the scene
 
 
+# ----------------------------------------------------------------------------- cache
+
+
+@cli.command()
+@click.option("--clear", is_flag=True, help="Remove every compiled kernel (the next run "
+              "compiles again, ~1-2 min for contact scenes).")
+@_reports_errors
+def cache(clear):
+    """Where compiled kernels are cached and how much they take; --clear removes them.
+
+    The folder: $VRSIM_CACHE_DIR, else $NUMBA_CACHE_DIR, else ~/.cache/vrsim/numba. A
+    damaged entry is found and compiled again by itself; --clear is for a cache you no
+    longer want (or a full disk)."""
+    from vrsim_cli.kernels import jit
+
+    if clear:
+        base, removed, freed = jit.clear_cache()
+        click.echo(f"cache: removed {removed} files ({freed / 1e6:.1f} MB) from "
+                   f"{printable(str(base))}")
+        return
+    base, files, size = jit._default_dir(), 0, 0
+    for folder in sorted(base.glob("src-*")) if base.is_dir() else []:
+        for path in folder.rglob("*"):
+            with contextlib.suppress(OSError):
+                if path.is_file():
+                    files, size = files + 1, size + path.stat().st_size
+    click.echo(f"cache: {printable(str(base))}: {files} files, {size / 1e6:.1f} MB"
+               + ("" if jit.cache_note() is None else f" ({jit.cache_note()})"))
+
+
 # ----------------------------------------------------------------------------- schema
 
 
