@@ -491,6 +491,25 @@ def test_a_full_disk_at_a_random_byte_keeps_the_previous_output(tmp_path, refere
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("part", [0.1, 0.5, 0.9])
+def test_a_full_disk_is_said_once(tmp_path, references, fmt, part):
+    """Issue 53: MCAP on a full disk kept the previous file and exited 1, but the SDK
+    logged each later message's failure: ~42 000 lines of "error logging message:
+    McapError(...)" for a long run (100 here). Every writer now says it once: -q leaves
+    exactly the one error line, and the run stops at the failed write."""
+    _, tum_files, bytes_ref = references[fmt]
+    size = len(bytes_ref) if bytes_ref is not None else max(
+        len(c) for n, (_, c) in tum_files.items() if n.endswith(".tum"))
+    _, before = prepare(tmp_path, fmt)
+    proc = child(tmp_path, fmt, fsize=int(part * size))
+    assert proc.returncode == 1, proc.stderr
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: cannot write "), proc.stderr[:2000]
+    assert "File too large" in lines[0]
+    assert snapshot(tmp_path / "w") == before
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL])
 def test_a_signal_at_a_random_time_loses_nothing(tmp_path, references, fmt, sig):
     """Sent from outside at a random time of a 1 s realtime run: during start-up, scene
