@@ -565,6 +565,81 @@ def test_a_signal_during_start_up_is_a_clean_exit(write_scene, tmp_path, sig, mo
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml"]
 
 
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("module", ["vrsim_cli.interrupts", "threading"])
+def test_a_signal_before_the_handlers_are_installed_is_a_clean_exit(write_scene, tmp_path,
+                                                                    sig, module):
+    """Issue 53: Ctrl-C in the first milliseconds gave a KeyboardInterrupt traceback. The
+    entry point's first lines install a handler from the C module before they import
+    `interrupts` (and its threading, enum): from vrsim's first instruction on, a signal is
+    a clean exit. (Python's own start-up before it, site and .pth files, is Python's.)"""
+    proc = subprocess.run([sys.executable, "-c", IMPORT_SIGNAL, sig, module, "run",
+                           str(write_scene(SCENE)), "-o", str(tmp_path / "out.csv")],
+                          cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == {"SIGINT": 130, "SIGTERM": 143}[sig], proc.stderr
+    assert proc.stderr == f"interrupted by {sig}; nothing was written\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml"]
+
+
+CLOSED = """
+import os, sys
+for fd in map(int, sys.argv[1].split(",")):
+    os.close(fd)
+sys.argv = ["vrsim"] + sys.argv[2:]
+from vrsim_cli.__main__ import main
+main()
+"""
+
+
+def _closed_run(fds: str, *args):
+    """`vrsim ARGS` with the descriptors `fds` closed, as `2>&-` or a daemon starts it;
+    returns (exit code, stdout, stderr) of whatever remains open."""
+    read_out, write_out = os.pipe()
+    read_err, write_err = os.pipe()
+    proc = subprocess.Popen([sys.executable, "-c", CLOSED, fds, *map(str, args)], cwd=REPO,
+                            stdout=write_out, stderr=write_err)
+    os.close(write_out)
+    os.close(write_err)
+    with os.fdopen(read_out) as out, os.fdopen(read_err) as err:
+        stdout, stderr = out.read(), err.read()
+    return proc.wait(timeout=120), stdout, stderr
+
+
+def test_a_run_with_stderr_closed_still_writes_its_output(write_scene, tmp_path):
+    """Issue 53: with stderr closed (`2>&-`) a run exited 1, wrote nothing and said nothing
+    (the progress bar asked `sys.stderr.isatty()` of None). Now the notes are dropped and
+    the run goes on; its output is whole and the summary is on stdout."""
+    out = tmp_path / "out.csv"
+    code, stdout, _ = _closed_run("2", "run", write_scene(SCENE), "-o", out)
+    assert code == 0
+    assert stdout.startswith("drop: simulated 1 s") and "state sha256:" in stdout
+    assert len(read_trajectory(out).tracks["ball"].t) == SAMPLES
+
+
+@pytest.mark.parametrize("args,said", [(["-o", "-"], "-o - writes to standard output"),
+                                       (["-o", "out.csv", "--json"], "--json writes to")])
+def test_a_run_with_stdout_closed_that_needs_it_is_a_usage_error(write_scene, tmp_path, args,
+                                                                 said):
+    """Issue 53: `-o -` with stdout closed was an AttributeError traceback."""
+    code, _, stderr = _closed_run("1", "run", write_scene(SCENE), *args)
+    assert code == 2, stderr
+    assert f"Error: {said}" in stderr and "standard output, which is closed" in stderr
+    assert "Traceback" not in stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml"]
+
+
+def test_closed_stdout_and_stderr_still_run_and_keep_files_off_fds_1_and_2(write_scene,
+                                                                        tmp_path):
+    """Both closed: nothing can be said, the exit code says it; and a file opened during
+    the run never takes descriptor 1 or 2 (whatever went to stderr would land in it)."""
+    out = tmp_path / "out.csv"
+    code, _, _ = _closed_run("1,2", "run", write_scene(SCENE), "-o", out)
+    assert code == 0
+    assert out.read_text().startswith("t,entity,")
+    code, _, _ = _closed_run("1,2", "run", write_scene(SCENE), "-o", "-")
+    assert code == 2
+
+
 @pytest.fixture
 def tiny_disk(tmp_path):
     """A 128 KiB tmpfs: a real file system that fills up (needs root; skipped otherwise)."""

@@ -252,6 +252,10 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     if as_json and to_stdout:
         raise click.UsageError("--json prints the summary on standard output; -o - writes "
                                "the trajectory there: give -o a file")
+    from vrsim_cli.streams import stdout_closed
+    if stdout_closed() and (to_stdout or as_json):  # before anything is simulated
+        raise click.UsageError(f"{'-o -' if to_stdout else '--json'} writes to standard "
+                               f"output, which is closed; give -o a file")
     with interrupts.held():  # numba calls back into Python: a signal waits for the end
         prepare_kernels(model, say)  # compiled once after an install; before any output
     start_collector()
