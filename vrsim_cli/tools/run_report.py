@@ -14,6 +14,9 @@ def run_summary(model, result, *, frames=None, live_url=None, error=None,
                 interrupted_by=None) -> dict:
     """The run as JSON-ready numbers (SI units; names say the unit)."""
     state = result.state
+    from vrsim_cli.stages.dynamics.rigid import energy_loss_warning
+
+    loss = energy_loss_warning(model, state)
     return {
         "ok": error is None and interrupted_by is None,
         "scene": model.name,
@@ -38,6 +41,7 @@ def run_summary(model, result, *, frames=None, live_url=None, error=None,
         "live": live_url,
         "interrupted_by": interrupted_by,
         "error": None if error is None else str(error),
+        "warnings": [] if loss is None else [loss],  # numbers to distrust; still ok
     }
 
 
@@ -62,6 +66,7 @@ def format_run(summary: dict, profile: bool, realtime: bool) -> list[str]:
              f"{summary['wall_s']:.3f} s, "
              f"{'inf' if factor is None else f'{factor:.1f}'}x real time{where}",
              f"state sha256:{summary['state_sha256']}"]
+    lines += [f"warning: {text}" for text in summary.get("warnings", [])]
     if realtime:
         lines.append(f"realtime: missed {summary['missed_deadlines']} of "
                      f"{plural(summary['frames'], 'frame deadline')} (worst "
