@@ -292,10 +292,24 @@ print(faultmod.half(3.0), faultmod.third(3.0), jit.compile_report() > 0)
 """
 
 
-def _fault_run(tmp_path, *args):
-    env = child_env(tmp_path, tmp_path / "cache")
+def _fault_run(tmp_path, *args, modules=None):
+    """FAULT_RUN with faultmod from `modules` (default tmp_path), caching in tmp_path/cache."""
+    env = child_env(modules or tmp_path, tmp_path / "cache")
     return subprocess.run([sys.executable, "-c", FAULT_RUN, *args], cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def warm_faultmod(tmp_path_factory):
+    """(folder of faultmod.py, a cache holding its two kernels): compiled once for the
+    damage cases, which each damage a copy (numba keys entries by the module's path, so
+    the module stays where it was compiled)."""
+    folder = tmp_path_factory.mktemp("faultmod")
+    (folder / "faultmod.py").write_text(FAULTMOD)
+    first = _fault_run(folder)
+    assert first.returncode == 0 and first.stdout.split() == ["1.5", "1.0", "True"], \
+        first.stderr
+    return folder, folder / "cache"
 
 
 def _damage(path, how: str) -> None:
@@ -307,16 +321,17 @@ def _damage(path, how: str) -> None:
 @pytest.mark.skipif(jit.JIT_DISABLED, reason="no compiled code to cache with the JIT off")
 @pytest.mark.parametrize("suffix", [".nbc", ".nbi"])
 @pytest.mark.parametrize("how", ["truncated", "empty", "random"])
-def test_an_unreadable_cache_entry_is_compiled_again_and_said_once(tmp_path, suffix, how):
-    (tmp_path / "faultmod.py").write_text(FAULTMOD)
-    first = _fault_run(tmp_path)
-    assert first.returncode == 0 and first.stdout.split() == ["1.5", "1.0", "True"], \
-        first.stderr
+def test_an_unreadable_cache_entry_is_compiled_again_and_said_once(tmp_path, suffix, how,
+                                                                    warm_faultmod):
+    import shutil
+
+    modules, warm = warm_faultmod
+    shutil.copytree(warm, tmp_path / "cache")
     files = sorted((tmp_path / "cache").rglob(f"faultmod.*{suffix}"))
     assert len(files) == 2  # one per kernel
     for path in files:
         _damage(path, how)
-    second = _fault_run(tmp_path)
+    second = _fault_run(tmp_path, modules=modules)
     assert second.returncode == 0, second.stderr
     assert "Traceback" not in second.stderr
     assert second.stdout.split() == ["1.5", "1.0", "True"]  # compiled again, right numbers
@@ -324,7 +339,7 @@ def test_an_unreadable_cache_entry_is_compiled_again_and_said_once(tmp_path, suf
     assert len(notices) == 1, second.stderr  # once, not once per kernel
     assert f"the kernel cache in {files[0].parent} held an unreadable entry" in notices[0]
     assert "vrsim cache --clear" in notices[0]
-    third = _fault_run(tmp_path)  # the recompiled entries were saved whole
+    third = _fault_run(tmp_path, modules=modules)  # the recompiled entries were saved whole
     assert third.returncode == 0 and third.stdout.split() == ["1.5", "1.0", "False"], \
         third.stderr
     assert "unreadable" not in third.stderr
