@@ -766,7 +766,7 @@ def outputs_cases() -> list[Case]:
                   "renders\udc80"):
         c(f"frames-at-{where[:20]}", {"scene.yaml": FRAMES_SCENE},
           [["run", "scene.yaml", "-q", "--frames", where, "-o", "out.csv"]],
-          targets=TARGETS + ("a",))
+          targets=TARGETS + ("a", where))
     c("frames-rerun", {"scene.yaml": FRAMES_SCENE},
       [["run", "scene.yaml", "-q", "--frames", "renders"]] * 2)
     c("frames-rerun-shorter", {"scene.yaml": FRAMES_SCENE},
@@ -1084,8 +1084,9 @@ def run_case(case: Case, root: Path, timeout: float, fork: bool = False) -> Case
             command = args[0]
             result["allowed"] = list(ALLOWED.get(command, (0, 1, 2)))
             result["wrong_code"] = not result["hang"] and result["code"] not in result["allowed"]
-            partials = [str(p) for p in work.rglob("*.partial")]
-            result["half_written"] = partials
+            partials = [str(p) for p in work.rglob("*.partial")
+                        if made is None or p.relative_to(work).as_posix() not in made]
+            result["half_written"] = partials  # (a case's own .partial files are not)
             result["outside"] = sorted(p.name for p in folder.iterdir()) != before
             result["touched"], result["stray"] = [], []
             if made is not None:
