@@ -724,7 +724,7 @@ FRAMES_SCENE = (b"vrsim: 1\nduration: 0.5\nframe_rate: 20\nbodies:\n"
 LONG = (b"vrsim: 1\nduration: 20\ndt: 0.01\nframe_rate: 50\n"
         b"bodies: [{name: a, mass: 1, velocity: [1, 2, 0]}, {name: b, mass: 2}]\n")
 PNG_OF_THEIRS = b"\x89PNG\r\n\x1a\n" + b"their own image" * 20
-TARGETS = ("out", "out.csv", "out.mcap", "renders", "video.mp4", "video.gif", "cache")
+TARGETS = ("out", "out.csv", "out.mcap", "renders", "video.mp4", "video.gif", "cache/")
 WARM_CACHE = None  # the kernel cache this corpus's processes use (set by main)
 
 
@@ -767,11 +767,12 @@ def outputs_cases() -> list[Case]:
         c(f"frames-at-{where[:20]}", {"scene.yaml": FRAMES_SCENE},
           [["run", "scene.yaml", "-q", "--frames", where, "-o", "out.csv"]],
           targets=TARGETS + ("a", where))
+    # the frames of an earlier run of the same scene are the run's to replace and remove
     c("frames-rerun", {"scene.yaml": FRAMES_SCENE},
-      [["run", "scene.yaml", "-q", "--frames", "renders"]] * 2)
+      [["run", "scene.yaml", "-q", "--frames", "renders"]] * 2, targets=("renders/",))
     c("frames-rerun-shorter", {"scene.yaml": FRAMES_SCENE},
       [["run", "scene.yaml", "-q", "--frames", "renders", "--duration", "1"],
-       ["run", "scene.yaml", "-q", "--frames", "renders"]])
+       ["run", "scene.yaml", "-q", "--frames", "renders"]], targets=("renders/",))
     # video targets
     kinds = {"absent": {}, "previous": b"the previous video", "fifo": ("fifo",),
              "dir": ("dir",), "link-file": ("link", "elsewhere.bin"),
@@ -823,7 +824,7 @@ def outputs_cases() -> list[Case]:
               env={"VRSIM_CACHE_DIR": "{d}/cache"})
     c("cache-a-file", {"scene.yaml": SIMPLE, "cache": b"not a folder\n"},
       [["run", "scene.yaml", "-q", "-o", "out.csv"]], env={"VRSIM_CACHE_DIR": "{d}/cache"},
-      targets=("out.csv",))
+      targets=("out.csv",))  # the file named like the cache stays as it was
     c("cache-in-sys", {"scene.yaml": SIMPLE}, [["run", "scene.yaml", "-q", "-o", "out.csv"]],
       env={"VRSIM_CACHE_DIR": "/sys/vrsim-cache"})
     c("cache-full", {"scene.yaml": SIMPLE}, [["run", "scene.yaml", "-q", "-o", "out.csv"]],
@@ -831,7 +832,7 @@ def outputs_cases() -> list[Case]:
     c("cache-clear", {"scene.yaml": SIMPLE, "cache": ("cachecopy", "truncated", ".none"),
                       "cache/README": b"theirs\n"},
       [["cache", "--clear"], ["cache"]], env={"VRSIM_CACHE_DIR": "{d}/cache"},
-      targets=TARGETS[:-1] + ("cache/src-",))
+      targets=TARGETS[:-1] + ("cache", "cache/src-"))
     return cases
 
 
@@ -1091,11 +1092,15 @@ def run_case(case: Case, root: Path, timeout: float, fork: bool = False) -> Case
             result["touched"], result["stray"] = [], []
             if made is not None:
                 now = _tree(work)
-                mine = lambda name: any(  # noqa: E731  ("x-": every name that begins so)
-                    name == t or name.startswith(t + "/") or t.endswith("-") and
-                    name.startswith(t) for t in case.targets)
-                result["touched"] = sorted(n for n in made if not mine(n) and
-                                           now.get(n) != made[n])
+                # a target "x" may be replaced and new files may appear under it; one
+                # ending in "/" or "-" may also change what was under it before (the
+                # kernel cache); a user's file inside a frames folder is not the run's
+                prefix = lambda n: any(t[-1] in "/-" and n.startswith(t)  # noqa: E731
+                                       for t in case.targets)
+                mine = lambda n: n in case.targets or prefix(n) or any(  # noqa: E731
+                    n.startswith(t + "/") for t in case.targets)
+                result["touched"] = sorted(n for n in made if n not in case.targets and
+                                           not prefix(n) and now.get(n) != made[n])
                 result["stray"] = sorted(n for n in now if n not in made and not mine(n))
             result["spam"] = len(result["stderr"].splitlines()) > 20 if \
                 len(result["stderr"]) < 2000 else result["stderr"].count("\n") > 20
