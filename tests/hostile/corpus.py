@@ -724,7 +724,7 @@ FRAMES_SCENE = (b"vrsim: 1\nduration: 0.5\nframe_rate: 20\nbodies:\n"
 LONG = (b"vrsim: 1\nduration: 20\ndt: 0.01\nframe_rate: 50\n"
         b"bodies: [{name: a, mass: 1, velocity: [1, 2, 0]}, {name: b, mass: 2}]\n")
 PNG_OF_THEIRS = b"\x89PNG\r\n\x1a\n" + b"their own image" * 20
-TARGETS = ("out", "out.csv", "out.mcap", "renders", "video.mp4", "video.gif", "cache/")
+TARGETS = ("out", "out.csv", "out.mcap", "renders", "video.mp4", "video.gif", "cache", "cache/")
 WARM_CACHE = None  # the kernel cache this corpus's processes use (set by main)
 
 
@@ -769,10 +769,10 @@ def outputs_cases() -> list[Case]:
           targets=TARGETS + ("a", where))
     # the frames of an earlier run of the same scene are the run's to replace and remove
     c("frames-rerun", {"scene.yaml": FRAMES_SCENE},
-      [["run", "scene.yaml", "-q", "--frames", "renders"]] * 2, targets=("renders/",))
+      [["run", "scene.yaml", "-q", "--frames", "renders"]] * 2, targets=("renders", "renders/"))
     c("frames-rerun-shorter", {"scene.yaml": FRAMES_SCENE},
       [["run", "scene.yaml", "-q", "--frames", "renders", "--duration", "1"],
-       ["run", "scene.yaml", "-q", "--frames", "renders"]], targets=("renders/",))
+       ["run", "scene.yaml", "-q", "--frames", "renders"]], targets=("renders", "renders/"))
     # video targets
     kinds = {"absent": {}, "previous": b"the previous video", "fifo": ("fifo",),
              "dir": ("dir",), "link-file": ("link", "elsewhere.bin"),
@@ -832,7 +832,7 @@ def outputs_cases() -> list[Case]:
     c("cache-clear", {"scene.yaml": SIMPLE, "cache": ("cachecopy", "truncated", ".none"),
                       "cache/README": b"theirs\n"},
       [["cache", "--clear"], ["cache"]], env={"VRSIM_CACHE_DIR": "{d}/cache"},
-      targets=TARGETS[:-1] + ("cache", "cache/src-"))
+      targets=TARGETS[:-1] + ("cache/src-",))
     return cases
 
 
