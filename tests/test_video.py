@@ -152,3 +152,46 @@ def test_gif_delays_are_at_least_20_ms_and_keep_real_time(tmp_path, fps):
     kept = -(-images // writer.keep_every)
     assert len(delays) == kept
     assert abs(sum(delays) - 1e3 * kept * writer.keep_every / fps) <= 10
+
+
+@pytest.fixture
+def read_only_folder(tmp_path):
+    """A folder no file can be made in: a read-only tmpfs as root (whom permission bits do
+    not stop), else a folder without write permission."""
+    import os
+    import subprocess
+
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    if os.geteuid() == 0:
+        proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs",
+                               str(folder)], capture_output=True, text=True)
+        if proc.returncode != 0:
+            pytest.skip(f"cannot mount a read-only tmpfs here: {proc.stderr.strip()}")
+        try:
+            yield folder
+        finally:
+            subprocess.run(["umount", str(folder)], check=False)
+        return
+    folder.chmod(0o555)
+    try:
+        yield folder
+    finally:
+        folder.chmod(0o755)
+
+
+@pytest.mark.parametrize("what", ["video.mp4", "video.gif", "frames"])
+def test_a_read_only_folder_is_a_usage_error_before_the_run(invoke, write_scene, tmp_path,
+                                                            read_only_folder, what):
+    """Issue 53: --video into a read-only folder was an OSError traceback (EROFS from the
+    temporary file), frames there a run failure (exit 1). A folder where no file can be
+    made is refused before the run, exit 2, and nothing is written."""
+    traj = tmp_path / "traj.csv"
+    args = (["--frames", read_only_folder / "f"] if what == "frames" else
+            ["--frames", tmp_path / "f", "--video", read_only_folder / what])
+    result = invoke("run", write_scene(STATIC), *args, "-o", traj)
+    assert result.exit_code == 2, result.output
+    assert f"folder '{read_only_folder}' is not writable" in result.stderr
+    assert "Traceback" not in result.output and "simulated" not in result.output
+    assert not traj.exists() and not (tmp_path / "f").exists()
+    assert list(read_only_folder.iterdir()) == []
