@@ -70,15 +70,12 @@ def test_a_signal_during_the_first_stepped_compile_is_answered_at_once(tmp_path,
     sent = time.monotonic()
     proc.send_signal(signum)
     out, err = proc.communicate(timeout=30)
-    waited = time.monotonic() - sent
-    # answered within the run's 0.05 s polling and a kill, not after the compile (> 30 s);
-    # 3 s for a loaded 2-core machine
-    assert waited < 3.0, waited
+    # answered at once, not after the compile: the helper was stopped before it could
+    # finish, so no marker claims a compile (checked below); no wall-clock bound, whose
+    # verdict would depend on the machine's load (issue 53)
     if signum == signal.SIGKILL:  # the run cannot act: its helper notices and stops
         assert proc.returncode == -signum
-        while helpers_using(cache):
-            assert time.monotonic() - sent < 3.0
-            time.sleep(0.05)
+        _wait_for(lambda: not helpers_using(cache), 60, "the helper never stopped")
     else:
         assert proc.returncode == 128 + signum, err
         assert "Traceback" not in err
@@ -127,7 +124,9 @@ def test_a_second_run_waits_for_the_first_runs_compile_instead_of_compiling_too(
         sent = time.monotonic()
         second.send_signal(signal.SIGINT)
         out, err = second.communicate(timeout=30)
-        assert second.returncode == 130 and time.monotonic() - sent < 3.0, err
+        # at once: the first run's compile is still going (below), so the second did not
+        # wait for it (no wall-clock bound: its verdict would depend on the load)
+        assert second.returncode == 130, err
         assert "interrupted by SIGINT" in err and "Traceback" not in err
         assert helpers_using(cache) == helper  # the first compile goes on, undisturbed
 

@@ -1,9 +1,11 @@
-"""Results do not depend on the CPU (issue 19, item 3).
+"""Results do not depend on the CPU (issue 19, item 3; issue 53, item 4).
 
 Every scenario is run for its first 0.2 s in a child process under environment variables
-that change which machine code numpy, OpenBLAS and numba use, and the final state hash
-(sha256 of every state array, bit for bit) must equal the one of the unchanged
-environment:
+that change which machine code numpy, OpenBLAS and numba use, and every sample of its
+trajectory (the CSV's bytes: shortest round-trip floats, so equal bytes are equal bits)
+and its final state hash (sha256 of every state array) must equal those of the unchanged
+environment. The scenarios without contacts also run whole under the libm variants: a
+final hash missed the car's last-bit differences from t = 3.3 s (issue 53):
 
 - OPENBLAS_CORETYPE = Prescott, Haswell, SkylakeX, Zen: OpenBLAS's kernels for those CPUs
   (vrsim does its small-matrix algebra itself, `maths/products.py` and `kernels/`, so no
@@ -32,16 +34,27 @@ from conftest import SCENARIOS
 SECONDS = 0.2
 
 CHILD = r"""
-import json, sys
+import hashlib, json, sys
 from click.testing import CliRunner
 from vrsim_cli.cli import cli
 hashes = {}
 for path in sys.argv[2:]:
-    result = CliRunner().invoke(cli, ["run", path, "--duration", sys.argv[1]],
+    seconds = [] if sys.argv[1] == "whole" else ["--duration", sys.argv[1]]
+    result = CliRunner().invoke(cli, ["run", path, "-o", "trajectory.csv", *seconds],
                                 catch_exceptions=False)
     lines = [l for l in result.stdout.splitlines() if l.startswith("state sha256:")]
-    hashes[path] = lines[0] if result.exit_code == 0 and lines else \
-        f"exit {result.exit_code}: {result.stdout[-300:]} {result.stderr[-300:]}"
+    if result.exit_code == 0 and lines:
+        with open("trajectory.csv", "rb") as f:  # every sample, bit for bit
+            data = f.read()
+        # the first sample that differs is found by comparing these per-sample digests
+        rows = {}
+        for line in data.splitlines()[1:]:
+            t = line.split(b",", 1)[0]
+            rows.setdefault(t, hashlib.sha256()).update(line)
+        hashes[path] = [lines[0], [t.decode() + " " + h.hexdigest()[:16]
+                                   for t, h in rows.items()]]
+    else:
+        hashes[path] = f"exit {result.exit_code}: {result.stdout[-300:]} {result.stderr[-300:]}"
 print(json.dumps(hashes))
 """
 
@@ -65,6 +78,13 @@ VARIANTS["glibc's libm and numpy without FMA and AVX2"] = (
     {"GLIBC_TUNABLES": GLIBC_NO_FMA,
      "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"}, ALL)
 VARIANTS["numba for a generic x86-64"] = ({"NUMBA_CPU_NAME": "generic"}, GENERIC)
+# whole runs of the scenarios without contacts (~1 s each; the contact scenarios' whole
+# runs would cost minutes per variant): where libm's variants would show
+WHOLE = sorted(str(p) for p in SCENARIOS.glob("*.yaml")
+               if not any(line.startswith("collision:") for line in p.read_text().splitlines()))
+WHOLE_VARIANTS = {name: VARIANTS[name] for name in (
+    "glibc's libm without FMA and AVX2", "glibc's libm and numpy without FMA and AVX2",
+    "numpy without AVX2 and AVX-512")}
 
 
 MODEL_CHILD = r"""
@@ -105,35 +125,71 @@ def test_every_compiled_model_is_bit_identical_without_fma_in_libm(tmp_path):
     assert plain == no_fma, [os.path.basename(k) for k in plain if plain[k] != no_fma[k]]
 
 
-def _hashes(extra_env: dict, scenes: list[str], cwd) -> dict:
+def _hashes(extra_env: dict, scenes: list[str], cwd, seconds=SECONDS) -> dict:
     env = {k: v for k, v in os.environ.items()
            if k not in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "NUMBA_CPU_NAME",
                         "NUMBA_CPU_FEATURES", "GLIBC_TUNABLES")}
     env.update(extra_env)
     # a scenario's outputs are relative to the current folder: a temporary one
-    proc = subprocess.run([sys.executable, "-c", CHILD, str(SECONDS), *scenes], env=env,
+    proc = subprocess.run([sys.executable, "-c", CHILD, str(seconds), *scenes], env=env,
                           capture_output=True, text=True, timeout=600, cwd=cwd)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return json.loads(proc.stdout.splitlines()[-1])
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory):
-    found = _hashes({}, ALL, tmp_path_factory.mktemp("reference"))
-    failed = {k: v for k, v in found.items() if not v.startswith("state sha256:")}
+def _reference(tmp_path_factory, scenes, seconds):
+    found = _hashes({}, scenes, tmp_path_factory.mktemp("reference"), seconds)
+    failed = {k: v for k, v in found.items() if isinstance(v, str)}
     assert not failed, failed
     return found
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    return _reference(tmp_path_factory, ALL, SECONDS)
+
+
+@pytest.fixture(scope="module")
+def whole_reference(tmp_path_factory):
+    return _reference(tmp_path_factory, WHOLE, "whole")
+
+
+def _differences(reference: dict, found: dict, scenes) -> dict:
+    """scene -> the first sample whose values differ (or the final hash, or the error)."""
+    differ = {}
+    for k in scenes:
+        if found[k] == reference[k]:
+            continue
+        if isinstance(found[k], str):
+            differ[os.path.basename(k)] = found[k]
+            continue
+        (hash_a, rows_a), (hash_b, rows_b) = reference[k], found[k]
+        first = next((a.split()[0] for a, b in zip(rows_a, rows_b) if a != b), None)
+        differ[os.path.basename(k)] = f"from t = {first}" if first else \
+            f"final state {hash_a} != {hash_b}"
+    return differ
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux") or os.uname().machine != "x86_64",
                     reason="the variants name x86-64 CPUs and OpenBLAS/numpy x86 kernels")
 @pytest.mark.parametrize("variant", list(VARIANTS))
-def test_every_scenario_is_bit_identical_whatever_the_cpu_code(variant, reference, tmp_path):
+def test_every_sample_of_every_scenario_is_bit_identical_whatever_the_cpu_code(
+        variant, reference, tmp_path):
     extra, scenes = VARIANTS[variant]
-    found = _hashes(extra, scenes, tmp_path)
-    differ = {os.path.basename(k): (reference[k], found[k]) for k in scenes
-              if found[k] != reference[k]}
-    assert not differ, f"{variant} changes the result of {differ}"
+    differ = _differences(reference, _hashes(extra, scenes, tmp_path), scenes)
+    assert not differ, f"{variant} changes the trajectory of {differ}"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or os.uname().machine != "x86_64",
+                    reason="the variants name x86-64 CPUs and numpy x86 kernels")
+@pytest.mark.parametrize("variant", list(WHOLE_VARIANTS))
+def test_whole_runs_without_contacts_are_bit_identical_whatever_the_cpu_code(
+        variant, whole_reference, tmp_path):
+    """Issue 53: car.yaml without FMA in libm differed in the last bit of 7 values from
+    t = 3.3 s (numpy's sin and cos of the drive's heading); its final hash did not."""
+    extra, _ = WHOLE_VARIANTS[variant]
+    differ = _differences(whole_reference, _hashes(extra, WHOLE, tmp_path, "whole"), WHOLE)
+    assert not differ, f"{variant} changes the trajectory of {differ}"
 
 
 # Off the simulation path: the camera places rendered frames (PNG pixels, not the state);

@@ -491,6 +491,26 @@ def test_a_full_disk_at_a_random_byte_keeps_the_previous_output(tmp_path, refere
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("part", [0.1, 0.3, 0.6])
+def test_a_full_disk_is_said_once(tmp_path, references, fmt, part):
+    """Issue 53: MCAP on a full disk kept the previous file and exited 1, but the SDK
+    logged each later message's failure: ~42 000 lines of "error logging message:
+    McapError(...)" for a long run (~2000 for this 20 s one: the SDK writes whole chunks,
+    so a 1 s run fails only once). Every writer now says it once: -q leaves exactly the
+    one error line, and the run stops at the failed write."""
+    _, tum_files, bytes_ref = references[fmt]
+    size = len(bytes_ref) if bytes_ref is not None else max(
+        len(c) for n, (_, c) in tum_files.items() if n.endswith(".tum"))
+    _, before = prepare(tmp_path, fmt)
+    proc = child(tmp_path, fmt, fsize=int(part * size), extra=("--duration", "20"))
+    assert proc.returncode == 1, proc.stderr
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: cannot write "), proc.stderr[:2000]
+    assert "File too large" in lines[0]
+    assert snapshot(tmp_path / "w") == before
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL])
 def test_a_signal_at_a_random_time_loses_nothing(tmp_path, references, fmt, sig):
     """Sent from outside at a random time of a 1 s realtime run: during start-up, scene
@@ -544,6 +564,77 @@ def test_a_signal_during_start_up_is_a_clean_exit(write_scene, tmp_path, sig, mo
     assert proc.returncode == {"SIGINT": 130, "SIGTERM": 143}[sig], proc.stderr
     assert proc.stderr == f"interrupted by {sig}; nothing was written\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml"]
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("module", ["vrsim_cli.interrupts", "threading"])
+def test_a_signal_before_the_handlers_are_installed_is_a_clean_exit(write_scene, tmp_path,
+                                                                    sig, module):
+    """Issue 53: Ctrl-C in the first milliseconds gave a KeyboardInterrupt traceback. The
+    entry point's first lines install a handler from the C module before they import
+    `interrupts` (and its threading, enum): from vrsim's first instruction on, a signal is
+    a clean exit. (Python's own start-up before it, site and .pth files, is Python's.)"""
+    proc = subprocess.run([sys.executable, "-c", IMPORT_SIGNAL, sig, module, "run",
+                           str(write_scene(SCENE)), "-o", str(tmp_path / "out.csv")],
+                          cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == {"SIGINT": 130, "SIGTERM": 143}[sig], proc.stderr
+    assert proc.stderr == f"interrupted by {sig}; nothing was written\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml"]
+
+
+def _closed_run(fds: str, *args):
+    """`vrsim ARGS` with the descriptors `fds` closed, as `2>&-` or a daemon starts it;
+    returns (exit code, stdout, stderr) of whatever remains open."""
+    read_out, write_out = os.pipe()
+    read_err, write_err = os.pipe()
+    closing = [int(fd) for fd in fds.split(",")]
+
+    def close():  # in the child, before Python starts: as the shell's `2>&-` does
+        for fd in closing:
+            os.close(fd)
+
+    proc = subprocess.Popen([sys.executable, "-m", "vrsim_cli", *map(str, args)], cwd=REPO,
+                            stdout=write_out, stderr=write_err, preexec_fn=close)
+    os.close(write_out)
+    os.close(write_err)
+    with os.fdopen(read_out) as out, os.fdopen(read_err) as err:
+        stdout, stderr = out.read(), err.read()
+    return proc.wait(timeout=120), stdout, stderr
+
+
+def test_a_run_with_stderr_closed_still_writes_its_output(write_scene, tmp_path):
+    """Issue 53: with stderr closed (`2>&-`) a run exited 1, wrote nothing and said nothing
+    (the progress bar asked `sys.stderr.isatty()` of None). Now the notes are dropped and
+    the run goes on; its output is whole and the summary is on stdout."""
+    out = tmp_path / "out.csv"
+    code, stdout, _ = _closed_run("2", "run", write_scene(SCENE), "-o", out)
+    assert code == 0
+    assert stdout.startswith("drop: simulated 1 s") and "state sha256:" in stdout
+    assert len(read_trajectory(out).tracks["ball"].t) == SAMPLES
+
+
+@pytest.mark.parametrize("args,said", [(["-o", "-"], "-o - writes to standard output"),
+                                       (["-o", "out.csv", "--json"], "--json writes to")])
+def test_a_run_with_stdout_closed_that_needs_it_is_a_usage_error(write_scene, tmp_path, args,
+                                                                 said):
+    """Issue 53: `-o -` with stdout closed was an AttributeError traceback."""
+    code, _, stderr = _closed_run("1", "run", write_scene(SCENE), *args)
+    assert code == 2, stderr
+    assert f"Error: {said}" in stderr and "standard output, which is closed" in stderr
+    assert "Traceback" not in stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.yaml"]
+
+
+def test_closed_stdout_and_stderr_still_run_and_keep_files_off_fds_1_and_2(write_scene,
+                                                                        tmp_path):
+    """Both closed: nothing can be said, the exit code says it; and a file opened during
+    the run never takes descriptor 1 or 2 (whatever went to stderr would land in it)."""
+    out = tmp_path / "out.csv"
+    code, _, _ = _closed_run("1,2", "run", write_scene(SCENE), "-o", out)
+    assert code == 0
+    assert out.read_text().startswith("t,entity,")
+    code, _, _ = _closed_run("1,2", "run", write_scene(SCENE), "-o", "-")
+    assert code == 2
 
 
 @pytest.fixture

@@ -90,16 +90,17 @@ output:
 def test_run_with_frames_writes_every_nth_frame_at_the_asked_size(invoke, write_scene,
                                                                    tmp_path):
     out = tmp_path / "frames"
-    out.mkdir()
-    (out / "frame_000009.png").write_bytes(b"stale, from a longer run")
-    (out / "notes.txt").write_text("mine")
-    result = invoke("run", write_scene(STATIC), "--frames", out, "--profile")
+    scene = write_scene(STATIC.replace("duration: 0.5", "duration: 1"))
+    assert invoke("run", scene, "--frames", out, "-q").exit_code == 0  # 7 images
+    scene = write_scene(STATIC)  # the same scene file, run shorter
+    result = invoke("run", scene, "--frames", out, "--profile")
     assert result.exit_code == 0, result.output
-    # 10 loop frames after the initial state; images at frames 0, 3, 6, 9.
+    # 10 loop frames after the initial state; images at frames 0, 3, 6, 9; the longer
+    # run's images 4 to 6 are gone, so the folder holds one run's frames.
     names = sorted(p.name for p in out.iterdir())
     assert names == ["frame_000000.png", "frame_000001.png", "frame_000002.png",
-                     "frame_000003.png", "notes.txt"]
-    for name in names[:-1]:
+                     "frame_000003.png"]
+    for name in names:
         image = read_png((out / name).read_bytes())
         assert image.shape == (48, 64, 3)
         assert image[24, 32, 0] > 100 and image[24, 32, 1] == 0  # the ball, seen by default
@@ -190,6 +191,83 @@ def test_a_frame_that_cannot_be_written_fails_the_run_cleanly(invoke, write_scen
     assert "frame_000000.png: No space left on device" in result.stderr
     assert "Traceback" not in result.output
     assert list(out.iterdir()) == []  # no half-written image, no temporary file
+
+
+def _tree(folder: Path) -> dict:
+    """name -> (kind, bytes or link target) of everything in `folder`."""
+    import os
+    import stat
+
+    out = {}
+    for path in sorted(folder.iterdir()):
+        mode = os.lstat(path).st_mode
+        if stat.S_ISLNK(mode):
+            out[path.name] = ("link", os.readlink(path))
+        elif stat.S_ISFIFO(mode):
+            out[path.name] = ("fifo", None)
+        else:
+            out[path.name] = ("file", path.read_bytes())
+    return out
+
+
+@pytest.mark.parametrize("theirs", [
+    {"frame_000003.png": "mine, frame 3", "frame_000099.png": "mine, frame 99"},
+    {"notes.txt": "mine"},
+    {"frame_000001.png": "fifo"},
+    {"frame_000002.png": "link"},
+])
+def test_frames_never_touch_files_this_tool_did_not_write(invoke, write_scene, tmp_path,
+                                                          theirs):
+    """Issue 53: the user's own frame_000003.png was overwritten and frame_000099.png
+    deleted (exit 0); a FIFO or link named like a frame failed the run only after the
+    whole simulation (exit 1), the trajectory not written. Now any folder holding what
+    vrsim did not write is refused before the run simulates (exit 2), untouched."""
+    import os
+
+    out = tmp_path / "renders"
+    out.mkdir()
+    (tmp_path / "elsewhere.png").write_bytes(b"the link's target")
+    for name, what in theirs.items():
+        if what == "fifo":
+            os.mkfifo(out / name)
+        elif what == "link":
+            os.symlink(tmp_path / "elsewhere.png", out / name)
+        else:
+            (out / name).write_text(what)
+    before = _tree(out)
+    traj = tmp_path / "traj.csv"
+    result = invoke("run", write_scene(STATIC), "--frames", out, "-o", traj)
+    assert result.exit_code == 2, result.output
+    assert f"frames folder '{out}' holds '{sorted(theirs)[0]}'" in result.stderr
+    assert "empty or new folder" in result.stderr
+    assert "Traceback" not in result.output
+    assert "simulated" not in result.output  # refused before the run
+    assert not traj.exists()
+    assert _tree(out) == before
+    assert (tmp_path / "elsewhere.png").read_bytes() == b"the link's target"
+
+
+@pytest.mark.osmesa
+def test_frames_of_another_scene_are_not_this_runs_to_replace(invoke, write_scene,
+                                                              tmp_path):
+    out = tmp_path / "frames"
+    other = write_scene(STATIC, name="other.yaml")
+    assert invoke("run", other, "--frames", out, "-q").exit_code == 0
+    before = _tree(out)
+    result = invoke("run", write_scene(STATIC), "--frames", out)
+    assert result.exit_code == 2, result.output
+    assert "'frame_000000.png' (not a frame of this scene)" in result.stderr
+    assert _tree(out) == before
+
+
+def test_frames_into_a_folder_that_cannot_be_written_is_a_usage_error(invoke, write_scene,
+                                                                     tmp_path):
+    """sysfs refuses new files even to root (whose permission bits pass every check)."""
+    traj = tmp_path / "traj.csv"
+    result = invoke("run", write_scene(STATIC), "--frames", "/sys/vrsim-frames", "-o", traj)
+    assert result.exit_code == 2, result.output
+    assert "cannot be created: folder '/sys' is not writable" in result.stderr
+    assert "Traceback" not in result.output and not traj.exists()
 
 
 def test_frames_must_be_a_folder(invoke, write_scene, tmp_path):

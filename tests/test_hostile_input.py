@@ -18,7 +18,6 @@ import re
 import tempfile
 import time
 import tracemalloc
-from datetime import timedelta
 from pathlib import Path
 
 import pytest
@@ -259,7 +258,10 @@ def _assert_located(result, scene: Path, also=lambda file: False) -> None:
         assert line.isprintable(), line  # escaped: no control character reaches the terminal
 
 
-COMMON = dict(derandomize=True, database=None, deadline=timedelta(seconds=5),
+# no deadline: on a loaded machine (load 9-11) test_alias_bombs took 6.3 s for one case
+# and failed (issue 53); a verdict may not depend on the load. A case that hangs is
+# caught by the time-out; a slow one shows in the benchmarks.
+COMMON = dict(derandomize=True, database=None, deadline=None,
               suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
                                      HealthCheck.filter_too_much])
 
@@ -358,9 +360,9 @@ def test_emitters_may_not_add_up_to_unbounded_memory(tmp_path):
                        for i in range(1000))
     scene = tmp_path / "many.yaml"
     scene.write_text("vrsim: 1\nduration: 1\nemitters:\n" + emitters)
-    start = time.perf_counter()
+    start = time.process_time()  # this process's CPU time: the load does not add to it
     result = CliRunner().invoke(cli, ["validate", str(scene)], catch_exceptions=False)
-    assert time.perf_counter() - start < 10  # generous; the point is: refused, not built
+    assert time.process_time() - start < 10  # generous; the point is: refused, not built
     assert result.exit_code == 2
     assert "emitters: the scene has 100000000 bodies and particles; at most 400000" in \
         result.stderr
@@ -372,9 +374,9 @@ def test_nested_merge_keys_are_measured_before_they_expand(write_scene, invoke):
     2^40 steps. Found by the fuzzer (16 levels took 7 s); now refused from the node graph."""
     lines = ["vrsim: 1", "duration: 1", "m0: &m0 {a: 1, b: 2}"] + [
         f"m{i}: &m{i} {{<<: [*m{i - 1}, *m{i - 1}], k{i}: {i}}}" for i in range(1, 40)]
-    start = time.perf_counter()
+    start = time.process_time()  # CPU time, not wall: the verdict is the same under load
     result = invoke("validate", write_scene("\n".join(lines) + "\n"))
-    assert time.perf_counter() - start < 5  # generous; it takes milliseconds
+    assert time.process_time() - start < 5  # generous; it takes milliseconds
     assert result.exit_code == 2 and "document expands to more than 200000 values" in \
         result.stderr
 
@@ -407,9 +409,9 @@ def test_deep_brackets_are_refused_while_scanning(write_scene, invoke, depth):
     """PyYAML's scanner is quadratic in bracket depth (the fuzzer's 3000 levels took 65 s
     under tracemalloc); brackets deeper than 64 are now refused where they open."""
     scene = write_scene("vrsim: 1\nduration: 1\ngravity: " + "[" * depth + "]" * depth + "\n")
-    start = time.perf_counter()
+    start = time.process_time()  # CPU time, not wall: the verdict is the same under load
     result = invoke("validate", scene)
-    assert time.perf_counter() - start < 5  # generous; it takes milliseconds
+    assert time.process_time() - start < 5  # generous; it takes milliseconds
     assert result.stderr == (f"error: {scene}:3:74: (document): YAML: brackets nest deeper "
                              f"than 64 levels\n")
 

@@ -24,7 +24,6 @@ import math
 import os
 import tempfile
 import time
-from datetime import timedelta
 from pathlib import Path
 
 import yaml
@@ -331,7 +330,7 @@ output:
 """
 
 
-@settings(max_examples=int(os.environ.get("VRSIM_SCHEMA_EXAMPLES", 1000)), derandomize=True, database=None, deadline=timedelta(seconds=20),
+@settings(max_examples=int(os.environ.get("VRSIM_SCHEMA_EXAMPLES", 1000)), derandomize=True, database=None, deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
                                  HealthCheck.filter_too_much, HealthCheck.large_base_example])
 @given(scenes())

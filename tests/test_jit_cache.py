@@ -255,3 +255,128 @@ def test_processes_never_give_two_variants_one_symbol(tmp_path, how):
         assert proc.returncode == 0, proc.stderr[-2000:]
         names += proc.stdout.split()
     assert len(names) == 2 and names[0] != names[1], names
+
+
+# ----------------------------------------------------------------------------- faults
+# Issue 53: a damaged cache entry (an interrupted compile, a full disk, a bad copy) made
+# every later run fail with a pickle traceback, forever, and nothing said which folder to
+# delete; a save on a full disk was an OSError traceback.
+
+FAULTMOD = """
+from vrsim_cli.kernels.jit import kernel
+
+
+@kernel
+def half(x):
+    return 0.5 * x
+
+
+@kernel
+def third(x):
+    return x / 3.0
+"""
+
+FAULT_RUN = """
+import sys
+if sys.argv[1:] == ["full"]:  # every cache file fails as on a full disk
+    import builtins, errno
+    real_open = builtins.open
+    def full_open(file, mode="r", *args, **kwargs):
+        if "w" in mode and ".tmp." in str(file):
+            raise OSError(errno.ENOSPC, "No space left on device", str(file))
+        return real_open(file, mode, *args, **kwargs)
+    builtins.open = full_open
+import faultmod
+from vrsim_cli.kernels import jit
+print(faultmod.half(3.0), faultmod.third(3.0), jit.compile_report() > 0)
+"""
+
+
+def _fault_run(tmp_path, *args, modules=None):
+    """FAULT_RUN with faultmod from `modules` (default tmp_path), caching in tmp_path/cache."""
+    env = child_env(modules or tmp_path, tmp_path / "cache")
+    return subprocess.run([sys.executable, "-c", FAULT_RUN, *args], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def warm_faultmod(tmp_path_factory):
+    """(folder of faultmod.py, a cache holding its two kernels): compiled once for the
+    damage cases, which each damage a copy (numba keys entries by the module's path, so
+    the module stays where it was compiled)."""
+    folder = tmp_path_factory.mktemp("faultmod")
+    (folder / "faultmod.py").write_text(FAULTMOD)
+    first = _fault_run(folder)
+    assert first.returncode == 0 and first.stdout.split() == ["1.5", "1.0", "True"], \
+        first.stderr
+    return folder, folder / "cache"
+
+
+def _damage(path, how: str) -> None:
+    data = path.read_bytes()
+    path.write_bytes({"truncated": data[:len(data) // 2], "empty": b"",
+                      "random": os.urandom(max(len(data), 64))}[how])
+
+
+@pytest.mark.skipif(jit.JIT_DISABLED, reason="no compiled code to cache with the JIT off")
+@pytest.mark.parametrize("suffix", [".nbc", ".nbi"])
+@pytest.mark.parametrize("how", ["truncated", "empty", "random"])
+def test_an_unreadable_cache_entry_is_compiled_again_and_said_once(tmp_path, suffix, how,
+                                                                    warm_faultmod):
+    import shutil
+
+    modules, warm = warm_faultmod
+    shutil.copytree(warm, tmp_path / "cache")
+    files = sorted((tmp_path / "cache").rglob(f"faultmod.*{suffix}"))
+    assert len(files) == 2  # one per kernel
+    for path in files:
+        _damage(path, how)
+    second = _fault_run(tmp_path, modules=modules)
+    assert second.returncode == 0, second.stderr
+    assert "Traceback" not in second.stderr
+    assert second.stdout.split() == ["1.5", "1.0", "True"]  # compiled again, right numbers
+    notices = [line for line in second.stderr.splitlines() if "unreadable entry" in line]
+    assert len(notices) == 1, second.stderr  # once, not once per kernel
+    assert f"the kernel cache in {files[0].parent} held an unreadable entry" in notices[0]
+    assert "vrsim cache --clear" in notices[0]
+    third = _fault_run(tmp_path, modules=modules)  # the recompiled entries were saved whole
+    assert third.returncode == 0 and third.stdout.split() == ["1.5", "1.0", "False"], \
+        third.stderr
+    assert "unreadable" not in third.stderr
+
+
+@pytest.mark.skipif(jit.JIT_DISABLED, reason="no compiled code to cache with the JIT off")
+def test_a_cache_save_that_fails_compiles_for_this_run_only_and_says_so_once(tmp_path):
+    (tmp_path / "faultmod.py").write_text(FAULTMOD)
+    full = _fault_run(tmp_path, "full")
+    assert full.returncode == 0, full.stderr
+    assert "Traceback" not in full.stderr
+    assert full.stdout.split() == ["1.5", "1.0", "True"]
+    notices = [line for line in full.stderr.splitlines() if "cannot save" in line]
+    assert len(notices) == 1, full.stderr
+    assert "cannot save compiled kernels in " in notices[0]
+    assert "No space left on device): compiled for this run only" in notices[0]
+    # nothing half-written was left to load: the next run compiles and keeps them
+    assert list((tmp_path / "cache").rglob("*.tmp.*")) == []
+    again = _fault_run(tmp_path)
+    assert again.returncode == 0 and again.stdout.split() == ["1.5", "1.0", "True"]
+    assert "unreadable" not in again.stderr and "cannot save" not in again.stderr
+
+
+@pytest.mark.skipif(jit.JIT_DISABLED, reason="no compiled code to cache with the JIT off")
+def test_cache_clear_removes_compiled_kernels_and_nothing_else(tmp_path, invoke, monkeypatch):
+    (tmp_path / "faultmod.py").write_text(FAULTMOD)
+    assert _fault_run(tmp_path).returncode == 0
+    base = tmp_path / "cache"
+    theirs = [base / "README.txt", next(base.glob("src-*")) / "notes.txt"]
+    for path in theirs:
+        path.write_text("mine")
+    monkeypatch.setenv("VRSIM_CACHE_DIR", str(base))
+    shown = invoke("cache")
+    assert shown.exit_code == 0 and f"cache: {base}: " in shown.stdout
+    result = invoke("cache", "--clear")
+    assert result.exit_code == 0, result.output
+    assert f"from {base}" in result.stdout
+    left = sorted(p for p in base.rglob("*") if p.is_file())
+    assert left == sorted(theirs)
+    assert _fault_run(tmp_path).stdout.split()[-1] == "True"  # compiled again

@@ -232,9 +232,9 @@ def test_alias_bomb_is_refused_quickly(write_scene):
     for i in range(1, 10):
         refs = ", ".join([f"*a{i - 1}"] * 10)
         lines.append(f"a{i}: &a{i} [{refs}]")
-    start = time.perf_counter()
+    start = time.process_time()  # CPU time, not wall: the same verdict under load
     out = problems(write_scene, "\n".join(lines) + "\n")
-    assert time.perf_counter() - start < 10  # generous: the point is "not hours"
+    assert time.process_time() - start < 10  # generous: the point is "not hours"
     assert len(out) == 1 and "expands to more than 200000 values" in out[0]
 
 

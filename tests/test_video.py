@@ -47,17 +47,61 @@ def test_video_usage_errors_exit_2(invoke, write_scene, args, message):
     assert result.exit_code == 2 and message in result.stderr, result.stderr
 
 
-def test_missing_imageio_is_reported_before_the_run(invoke, write_scene, tmp_path,
-                                                    monkeypatch):
-    monkeypatch.setitem(sys.modules, "imageio", None)  # as if the extra were not installed
-    monkeypatch.delitem(sys.modules, "imageio.v2", raising=False)
+def test_missing_imageio_ffmpeg_is_reported_before_the_run(invoke, write_scene, tmp_path,
+                                                           monkeypatch):
+    # as if the extra were not installed
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)
     out = tmp_path / "traj.csv"
     result = invoke("run", write_scene(STATIC), "--frames", tmp_path / "f", "--video",
                     tmp_path / "v.mp4", "-o", out)
     assert result.exit_code == 2
-    assert "--video needs imageio, which is not installed: pip install 'vrsim-cli[video]'" \
-        in result.stderr
+    assert "--video needs imageio-ffmpeg, which is not installed: pip install " \
+        "'vrsim-cli[video]'" in result.stderr
     assert not out.exists() and not (tmp_path / "f").exists()
+
+
+# An encoder that fails as ffmpeg does on a full disk: it reads its input, writes part of
+# the file, says why on stderr and exits with 1.
+FULL_DISK_FFMPEG = """#!/bin/sh
+for last; do :; done
+cat > /dev/null
+printf 'truncated' > "$last"
+echo "[out#0/mp4] Error writing trailer: No space left on device" >&2
+exit 1
+"""
+
+
+@pytest.mark.osmesa
+def test_a_failing_encoder_fails_the_run_and_keeps_the_previous_video(invoke, write_scene,
+                                                                      tmp_path, monkeypatch):
+    """Issue 53: on a full disk ffmpeg said "No space left", vrsim exited 0 and replaced
+    the previous out.mp4 by a truncated file."""
+    fake = tmp_path / "ffmpeg"
+    fake.write_text(FULL_DISK_FFMPEG)
+    fake.chmod(0o755)
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(fake))  # imageio-ffmpeg's own override
+    video = tmp_path / "out.mp4"
+    video.write_bytes(b"the previous video")
+    result = invoke("run", write_scene(STATIC), "--frames", tmp_path / "f", "--video", video)
+    assert result.exit_code == 1, result.output
+    assert f"cannot write {video}: the video encoder (ffmpeg) failed: [out#0/mp4] Error " \
+        "writing trailer: No space left on device" in result.stderr
+    assert "Traceback" not in result.output
+    assert video.read_bytes() == b"the previous video"
+    assert [p.name for p in tmp_path.iterdir() if "partial" in p.name] == []
+
+
+@pytest.mark.parametrize("name", ["out.mp4", "out.gif"])
+def test_a_video_into_a_folder_that_cannot_be_written_is_a_usage_error(invoke, write_scene,
+                                                                       tmp_path, name):
+    """Issue 53: an OSError traceback. sysfs refuses new files even to root."""
+    traj = tmp_path / "traj.csv"
+    result = invoke("run", write_scene(STATIC), "--frames", tmp_path / "f", "--video",
+                    f"/sys/{name}", "-o", traj)
+    assert result.exit_code == 2, result.output
+    assert "--video: folder '/sys' is not writable" in result.stderr
+    assert "Traceback" not in result.output
+    assert not traj.exists() and not (tmp_path / "f").exists()
 
 
 @pytest.mark.osmesa
@@ -108,3 +152,46 @@ def test_gif_delays_are_at_least_20_ms_and_keep_real_time(tmp_path, fps):
     kept = -(-images // writer.keep_every)
     assert len(delays) == kept
     assert abs(sum(delays) - 1e3 * kept * writer.keep_every / fps) <= 10
+
+
+@pytest.fixture
+def read_only_folder(tmp_path):
+    """A folder no file can be made in: a read-only tmpfs as root (whom permission bits do
+    not stop), else a folder without write permission."""
+    import os
+    import subprocess
+
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    if os.geteuid() == 0:
+        proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs",
+                               str(folder)], capture_output=True, text=True)
+        if proc.returncode != 0:
+            pytest.skip(f"cannot mount a read-only tmpfs here: {proc.stderr.strip()}")
+        try:
+            yield folder
+        finally:
+            subprocess.run(["umount", str(folder)], check=False)
+        return
+    folder.chmod(0o555)
+    try:
+        yield folder
+    finally:
+        folder.chmod(0o755)
+
+
+@pytest.mark.parametrize("what", ["video.mp4", "video.gif", "frames"])
+def test_a_read_only_folder_is_a_usage_error_before_the_run(invoke, write_scene, tmp_path,
+                                                            read_only_folder, what):
+    """Issue 53: --video into a read-only folder was an OSError traceback (EROFS from the
+    temporary file), frames there a run failure (exit 1). A folder where no file can be
+    made is refused before the run, exit 2, and nothing is written."""
+    traj = tmp_path / "traj.csv"
+    args = (["--frames", read_only_folder / "f"] if what == "frames" else
+            ["--frames", tmp_path / "f", "--video", read_only_folder / what])
+    result = invoke("run", write_scene(STATIC), *args, "-o", traj)
+    assert result.exit_code == 2, result.output
+    assert f"folder '{read_only_folder}' is not writable" in result.stderr
+    assert "Traceback" not in result.output and "simulated" not in result.output
+    assert not traj.exists() and not (tmp_path / "f").exists()
+    assert list(read_only_folder.iterdir()) == []

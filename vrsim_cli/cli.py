@@ -242,6 +242,7 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
         scene = scene.without(("output", "file"))
     model = compile_model(scene, output_override=target)
     _refuse_start_overlaps(scene, model)  # before kernels compile or outputs open
+    _check_frame_targets(model, video, scene_file)  # likewise
     to_stdout = model.output.path is not None and str(model.output.path) == "-"
     # With the trajectory on standard output, the summary goes to stderr.
     say = (lambda *a, **k: None) if quiet else \
@@ -254,6 +255,10 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
     if as_json and to_stdout:
         raise click.UsageError("--json prints the summary on standard output; -o - writes "
                                "the trajectory there: give -o a file")
+    from vrsim_cli.streams import stdout_closed
+    if stdout_closed() and (to_stdout or as_json):  # before anything is simulated
+        raise click.UsageError(f"{'-o -' if to_stdout else '--json'} writes to standard "
+                               f"output, which is closed; give -o a file")
     with interrupts.held():  # numba calls back into Python: a signal waits for the end
         prepare_kernels(model, say)  # compiled once after an install; before any output
     start_collector()
@@ -293,7 +298,7 @@ def run(scene_file, output, fmt, duration, dt, integrator, realtime, profile, qu
             try:
                 # before simulating: a missing OSMesa fails at once
                 try:
-                    frames = _open_frames(model, video)
+                    frames = _open_frames(model, video, scene_file)
                 except InputError as exc:  # OSMesa missing: located at what asked for frames
                     if type(exc).__name__ != "RenderUnavailable":  # (the scene or --frames)
                         raise
@@ -376,18 +381,39 @@ def _shown_path(model) -> str:
     return "standard output" if path == "-" else printable(path)
 
 
-def _open_frames(model, video: str | None):
+def _open_frames(model, video: str | None, scene_file: str):
     """The frames writer of the run (stage 3), or None. Raises RenderUnavailable (exit 2)
-    when OSMesa or PyOpenGL is missing; OpenGL is imported here and nowhere else."""
+    when OSMesa or PyOpenGL is missing; OpenGL is imported here and nowhere else. The
+    targets were checked before (`_check_frame_targets`)."""
+    if model.frames is None:
+        return None
+    from vrsim_cli.render import open_renderer, time_label
+    from vrsim_cli.writers.frames import FramesWriter, frames_tag
+
+    spec = model.frames
+    renderer = open_renderer(model, spec.width, spec.height, spec.camera)
+    sink = None
+    if video is not None:
+        from vrsim_cli.writers.video import VideoWriter
+        sink = VideoWriter(Path(video), fps=model.frame_rate / spec.every)
+    return FramesWriter(model, spec, renderer, label=time_label, video=sink,
+                        tag=frames_tag(scene_file))
+
+
+def _check_frame_targets(model, video: str | None, scene_file: str) -> None:
+    """Usage errors (exit 2) before anything is simulated: the frames folder must be vrsim's
+    own (`frames_folder_problem`), the video a writable regular-file target."""
     if model.frames is None:
         if video is not None:
             raise click.UsageError("--video needs frames: add --frames DIR (or "
                                    "output.frames.dir in the scene)")
-        return None
-    from vrsim_cli.render import open_renderer, time_label
-    from vrsim_cli.writers.frames import FramesWriter
+        return
+    from vrsim_cli.writers.frames import frames_folder_problem, frames_tag
 
     spec = model.frames
+    problem = frames_folder_problem(spec.dir, frames_tag(scene_file))
+    if problem is not None:
+        raise click.UsageError(printable(f"frames folder '{spec.dir}' {problem}"))
     if video is not None:
         from vrsim_cli.model.budget import MAX_RUN_MB, gif_mb
         from vrsim_cli.scene.files import about, file_target_problem
@@ -406,12 +432,6 @@ def _open_frames(model, video: str | None):
                     f"the run ends: {images} images of {spec.width}x{spec.height} px take "
                     f"about {held:.0f} MB (vrsim runs up to {MAX_RUN_MB} MB); use .mp4 "
                     f"(streamed), fewer images (output.frames.every) or smaller frames")
-    renderer = open_renderer(model, spec.width, spec.height, spec.camera)
-    sink = None
-    if video is not None:
-        from vrsim_cli.writers.video import VideoWriter
-        sink = VideoWriter(Path(video), fps=model.frame_rate / spec.every)
-    return FramesWriter(model, spec, renderer, label=time_label, video=sink)
 
 
 def _subsampled(frames) -> str:
@@ -522,6 +542,36 @@ def mass_properties(scene_file, as_json):
     else:
         for line in format_report(rows, int(scene.data.get("dimension", 3))).splitlines():
             click.echo(printable(line))  # body names come from the scene
+
+
+# ----------------------------------------------------------------------------- cache
+
+
+@cli.command()
+@click.option("--clear", is_flag=True, help="Remove every compiled kernel (the next run "
+              "compiles again, ~1-2 min for contact scenes).")
+@_reports_errors
+def cache(clear):
+    """Where compiled kernels are cached and how much they take; --clear removes them.
+
+    The folder: $VRSIM_CACHE_DIR, else $NUMBA_CACHE_DIR, else ~/.cache/vrsim/numba. A
+    damaged entry is found and compiled again by itself; --clear is for a cache you no
+    longer want (or a full disk)."""
+    from vrsim_cli.kernels import jit
+
+    if clear:
+        base, removed, freed = jit.clear_cache()
+        click.echo(f"cache: removed {removed} files ({freed / 1e6:.1f} MB) from "
+                   f"{printable(str(base))}")
+        return
+    base, files, size = jit._default_dir(), 0, 0
+    for folder in sorted(base.glob("src-*")) if base.is_dir() else []:
+        for path in folder.rglob("*"):
+            with contextlib.suppress(OSError):
+                if path.is_file():
+                    files, size = files + 1, size + path.stat().st_size
+    click.echo(f"cache: {printable(str(base))}: {files} files, {size / 1e6:.1f} MB"
+               + ("" if jit.cache_note() is None else f" ({jit.cache_note()})"))
 
 
 # ----------------------------------------------------------------------------- schema

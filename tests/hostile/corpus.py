@@ -19,12 +19,20 @@ meshes, sensor files, FIFOs, links, ...) and the `vrsim` invocations a user woul
 - files:    the scene, input files, meshes and outputs as FIFOs, devices, folders, links,
             loops, empty files, long and odd names, NUL bytes
 - limits:   solver iterations, frame sizes, emitter and body counts at and past the limits
+- outputs:  issue 53's classes: frames folders holding what vrsim did not write (user
+            frames, notes, FIFOs and links named like frames, subfolders, the folder itself
+            a link, file or FIFO, unwritable), video targets of every kind, with and without
+            -o; standard streams closed (0, 1, 2 and together) for every command; a full
+            disk (RLIMIT_FSIZE at 0 B to 100 kB) for every writer; the kernel cache damaged
+            (truncated, empty, random entries), a file, unwritable or full
 
 Every invocation is checked for: an exit code in the allowed set (validate: 0, 2; run: 0,
 1, 2; info/compare: 0, 1, 2), no traceback, no hang (--timeout), its peak memory (the
 process's maximum resident set), nothing half-written (no `.partial` left, nothing outside
 the case's folder), and for runs that exit 0, no NaN or infinity in the trajectory (a
-silent failure). A summary per category is printed; --report writes every result.
+silent failure). Cases of `outputs` also check that no file the case made before the
+command changed or went, except the targets it names (`touched`), that nothing appeared
+beside them (`stray`), and that stderr stays under 20 lines (`spam`). A summary per category is printed; --report writes every result.
 
 Not run by the test suite in full (it takes ~20 min on 2 cores); tests/test_hostile_schema.py
 runs the schema-driven generator in CI.
@@ -198,6 +206,10 @@ class Case:
     results: list = field(default_factory=list)
     complete: bool = False  # every command ran (not cut short by SIGINT/SIGTERM)
     key: str = ""  # unique in the corpus (see case_keys)
+    close: tuple = ()  # standard descriptors closed before the interpreter starts
+    fsize: int = -1  # RLIMIT_FSIZE in bytes (writes past it fail like a full disk)
+    env: dict = field(default_factory=dict)  # extra variables; "{d}" is the case folder
+    targets: tuple | None = None  # names a command may change; None: no touched check
 
 
 RUN = ["run", "scene.yaml", "-q"]
@@ -702,19 +714,143 @@ def warm(root: Path, timeout: float) -> list:
     return done
 
 
+# ----------------------------------------------------------------------------- outputs
+
+
+FRAMES_SCENE = (b"vrsim: 1\nduration: 0.5\nframe_rate: 20\nbodies:\n"
+                b"  - {name: ball, type: static, shape: {type: sphere, radius: 0.3}, "
+                b"position: [0, 1, 0]}\n"
+                b"output:\n  frames: {every: 3, width: 64, height: 48}\n")
+LONG = (b"vrsim: 1\nduration: 20\ndt: 0.01\nframe_rate: 50\n"
+        b"bodies: [{name: a, mass: 1, velocity: [1, 2, 0]}, {name: b, mass: 2}]\n")
+PNG_OF_THEIRS = b"\x89PNG\r\n\x1a\n" + b"their own image" * 20
+TARGETS = ("out", "out.csv", "out.mcap", "renders", "video.mp4", "video.gif", "cache", "cache/")
+WARM_CACHE = None  # the kernel cache this corpus's processes use (set by main)
+
+
+def outputs_cases() -> list[Case]:
+    cases = []
+
+    def c(name, files, commands, allowed=(), targets=TARGETS, **kw):
+        cases.append(Case("outputs", name, files, commands, allowed, targets=targets, **kw))
+
+    # frames folders: what is in them, what else the run writes
+    folders = {
+        "missing": {}, "empty": {"renders": ("emptydir",)},
+        "notes": {"renders/notes.txt": b"mine\n"},
+        "their-frames": {"renders/frame_000003.png": PNG_OF_THEIRS,
+                         "renders/frame_000099.png": PNG_OF_THEIRS},
+        "their-frame-0": {"renders/frame_000000.png": PNG_OF_THEIRS},
+        "frame-fifo": {"renders/frame_000001.png": ("fifo",)},
+        "frame-link": {"elsewhere.png": PNG_OF_THEIRS,
+                       "renders/frame_000002.png": ("link", "../elsewhere.png")},
+        "frame-dangling": {"renders/frame_000002.png": ("link", "nowhere.png")},
+        "frame-dir": {"renders/frame_000000.png": ("dir",)},
+        "frame-dev-null": {"renders/frame_000000.png": ("link", "/dev/null")},
+        "hidden": {"renders/.DS_Store": b"x"},
+        "subfolder": {"renders/old": ("dir",)},
+        "vrsim-partial": {"renders/.frame_000001.png.abcd1234.partial": b"half"},
+        "folder-link": {"real": ("emptydir",), "renders": ("link", "real")},
+        "folder-file": {"renders": b"a file\n"},
+        "folder-fifo": {"renders": ("fifo",)},
+        "folder-dev-null": {"renders": ("link", "/dev/null")},
+        "scene-inside": {"renders/scene.yaml": FRAMES_SCENE},
+    }
+    for fname, files in folders.items():
+        for vname, video in (("", []), ("mp4", ["--video", "video.mp4"]),
+                             ("gif", ["--video", "video.gif"])):
+            for oname, out in (("", []), ("csv", ["-o", "out.csv"])):
+                c(f"frames-{fname}-{vname}-{oname}", {"scene.yaml": FRAMES_SCENE, **files},
+                  [["run", "scene.yaml", "-q", "--frames", "renders", *video, *out]])
+    for where in ("/sys/vrsim-frames", "/proc/self/vrsim", "a/b/c/renders", "r" * 300,
+                  "renders\udc80"):
+        c(f"frames-at-{where[:20]}", {"scene.yaml": FRAMES_SCENE},
+          [["run", "scene.yaml", "-q", "--frames", where, "-o", "out.csv"]],
+          targets=TARGETS + ("a", where))
+    # the frames of an earlier run of the same scene are the run's to replace and remove
+    c("frames-rerun", {"scene.yaml": FRAMES_SCENE},
+      [["run", "scene.yaml", "-q", "--frames", "renders"]] * 2, targets=("renders", "renders/"))
+    c("frames-rerun-shorter", {"scene.yaml": FRAMES_SCENE},
+      [["run", "scene.yaml", "-q", "--frames", "renders", "--duration", "1"],
+       ["run", "scene.yaml", "-q", "--frames", "renders"]], targets=("renders", "renders/"))
+    # video targets
+    kinds = {"absent": {}, "previous": b"the previous video", "fifo": ("fifo",),
+             "dir": ("dir",), "link-file": ("link", "elsewhere.bin"),
+             "link-dev-null": ("link", "/dev/null"), "dangling": ("link", "nowhere")}
+    for suffix in ("mp4", "gif"):
+        for kname, kind in kinds.items():
+            files = {"scene.yaml": FRAMES_SCENE, "elsewhere.bin": b"theirs"}
+            if kname != "absent":
+                files[f"video.{suffix}"] = kind
+            c(f"video-{kname}-{suffix}", files,
+              [["run", "scene.yaml", "-q", "--frames", "renders", "--video",
+                f"video.{suffix}", "-o", "out.csv"]])
+        for where in ("/sys/v", "/dev/full", "missing/v", "v" * 300):
+            c(f"video-at-{where[:12]}-{suffix}", {"scene.yaml": FRAMES_SCENE},
+              [["run", "scene.yaml", "-q", "--frames", "renders", "--video",
+                f"{where}.{suffix}"]])
+    c("video-avi", {"scene.yaml": FRAMES_SCENE},
+      [["run", "scene.yaml", "-q", "--frames", "renders", "--video", "video.avi"]])
+    # standard streams closed before the interpreter starts
+    commands = {"validate": ["validate", "scene.yaml"], "run-csv": ["run", "scene.yaml",
+                "-o", "out.csv"], "run-stdout": ["run", "scene.yaml", "-o", "-"],
+                "run-stdout-mcap": ["run", "scene.yaml", "-o", "-", "--format", "mcap"],
+                "run-json": ["run", "scene.yaml", "--json", "-o", "out.csv"],
+                "run-bare": ["run", "scene.yaml"], "schema": ["schema"],
+                "run-frames": ["run", "frames.yaml", "--frames", "renders", "-o", "out.csv"],
+                "info": ["info", "scene.yaml"], "cache": ["cache"]}
+    for closed in ((0,), (1,), (2,), (1, 2), (0, 1, 2)):
+        for cname, command in commands.items():
+            c(f"closed-{''.join(map(str, closed))}-{cname}",
+              {"scene.yaml": SIMPLE, "frames.yaml": FRAMES_SCENE}, [command],
+              allowed=(0, 1, 2), close=closed)
+    # a full disk for every writer (RLIMIT_FSIZE: EFBIG past the limit)
+    writers = {"csv": ["-o", "out.csv"], "mcap": ["-o", "out.mcap"],
+               "tum": ["-o", "out", "--format", "tum"], "stdout": ["-o", "-"],
+               "frames": ["--frames", "renders", "--duration", "0.5"],
+               "mp4": ["--frames", "renders", "--duration", "0.5", "--video", "video.mp4"],
+               "gif": ["--frames", "renders", "--duration", "0.5", "--video", "video.gif"]}
+    for wname, extra in writers.items():
+        scene = FRAMES_SCENE if wname in ("frames", "mp4", "gif") else LONG
+        for limit in (0, 1, 100, 1000, 5000, 20_000, 100_000):
+            c(f"full-{wname}-{limit}", {"scene.yaml": scene, "out.csv": b"previous\n"},
+              [["run", "scene.yaml", "-q", *extra]], fsize=limit)
+    # the kernel cache: damaged, a file, unwritable, full (VRSIM_CACHE_DIR of the case)
+    for how in ("truncated", "empty", "random"):
+        for suffix in (".nbc", ".nbi"):
+            c(f"cache-{how}{suffix}", {"scene.yaml": SIMPLE, "cache": ("cachecopy", how,
+                                                                      suffix)},
+              [["run", "scene.yaml", "-q", "-o", "out.csv"]] * 2,
+              env={"VRSIM_CACHE_DIR": "{d}/cache"})
+    c("cache-a-file", {"scene.yaml": SIMPLE, "cache": b"not a folder\n"},
+      [["run", "scene.yaml", "-q", "-o", "out.csv"]], env={"VRSIM_CACHE_DIR": "{d}/cache"},
+      targets=("out.csv",))  # the file named like the cache stays as it was
+    c("cache-in-sys", {"scene.yaml": SIMPLE}, [["run", "scene.yaml", "-q", "-o", "out.csv"]],
+      env={"VRSIM_CACHE_DIR": "/sys/vrsim-cache"})
+    c("cache-full", {"scene.yaml": SIMPLE}, [["run", "scene.yaml", "-q", "-o", "out.csv"]],
+      env={"VRSIM_CACHE_DIR": "{d}/cache"}, fsize=2000)
+    c("cache-clear", {"scene.yaml": SIMPLE, "cache": ("cachecopy", "truncated", ".none"),
+                      "cache/README": b"theirs\n"},
+      [["cache", "--clear"], ["cache"]], env={"VRSIM_CACHE_DIR": "{d}/cache"},
+      targets=TARGETS[:-1] + ("cache/src-",))
+    return cases
+
+
 CATEGORIES = {"types": types_cases, "numbers": numbers_cases, "meshes": meshes_cases,
               "yaml": yaml_cases, "chains": chains_cases, "files": files_cases,
-              "limits": limits_cases}
+              "limits": limits_cases, "outputs": outputs_cases}
 
 # ----------------------------------------------------------------------------- running
 
 ALLOWED = {"validate": (0, 2), "run": (0, 1, 2), "info": (0, 2), "compare": (0, 1, 2),
+           "cache": (0,), "schema": (0,),
            "mass-properties": (0, 2), "collision-proxies": (0, 2)}
 
 
 def materialise(folder: Path, files: dict) -> None:
     for name, content in files.items():
         path = folder / name
+        path.parent.mkdir(parents=True, exist_ok=True)
         if isinstance(content, bytes):
             path.write_bytes(content)
         elif content[0] == "fifo":
@@ -722,6 +858,14 @@ def materialise(folder: Path, files: dict) -> None:
         elif content[0] == "dir":
             path.mkdir()
             (path / "inside.txt").write_text("not vrsim's\n")
+        elif content[0] == "emptydir":
+            path.mkdir(exist_ok=True)
+        elif content[0] == "cachecopy":  # this corpus's warm kernel cache, then damaged
+            shutil.copytree(WARM_CACHE, path, symlinks=True)
+            for victim in sorted(path.rglob(f"*{content[2]}")):  # every entry
+                data = victim.read_bytes()
+                victim.write_bytes({"truncated": data[:len(data) // 2], "empty": b"",
+                                    "random": os.urandom(max(64, len(data)))}[content[1]])
         elif content[0] == "link":
             path.symlink_to(content[1])
         elif content[0] == "chmod0":
@@ -762,8 +906,22 @@ def child_env() -> dict:
     return env
 
 
-def spawn_invocation(folder: Path, args: list, timeout: float) -> dict:
-    """One `python -m vrsim_cli ARGS` in `folder` as a new process."""
+def _preexec(close: tuple, fsize: int):
+    """In the child, before the interpreter starts: closed descriptors (as the shell's
+    `2>&-`), a file-size limit (as a full disk: EFBIG instead of SIGXFSZ)."""
+    def run():
+        if fsize >= 0:
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+            resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
+        for fd in close:
+            os.close(fd)
+    return run if close or fsize >= 0 else None
+
+
+def spawn_invocation(folder: Path, args: list, timeout: float, opts=None) -> dict:
+    """One `python -m vrsim_cli ARGS` in `folder` as a new process. `opts`: the case's
+    close, fsize and env (see Case)."""
+    opts = opts or {}
     start = time.perf_counter()
     # /usr/bin/time reports the child's own peak RSS; wait4 from this (large) process
     # would report at least this process's size (Linux carries it over through fork)
@@ -772,9 +930,15 @@ def spawn_invocation(folder: Path, args: list, timeout: float) -> dict:
     rss_file = Path(rss_name)
     timer = ["/usr/bin/time", "-f", "%M", "-o", str(rss_file)] \
         if os.path.exists("/usr/bin/time") else []
+    if opts.get("close") or opts.get("fsize", -1) >= 0:
+        timer = []  # time's own report would go through a closed or limited descriptor
+    env = child_env()
+    env.update({k: v.replace("{d}", str(folder)) for k, v in opts.get("env", {}).items()})
     proc = subprocess.Popen([*timer, sys.executable, "-m", "vrsim_cli", *args], cwd=folder,
-                            env=child_env(), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, start_new_session=True)
+                            env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=_preexec(tuple(opts.get("close", ())),
+                                                opts.get("fsize", -1)))
     RUNNING[threading.get_ident()] = proc.pid
     hang = False
     try:
@@ -864,13 +1028,38 @@ def fork_invocation(folder: Path, args: list, timeout: float) -> dict:
         return result
 
 
-def run_invocation(folder: Path, args: list, timeout: float, fork: bool = False) -> dict:
-    """One `vrsim ARGS` in `folder`, spawned or forked: exit code, time, peak RSS (MB),
+def run_invocation(folder: Path, args: list, timeout: float, fork: bool = False,
+                   opts=None) -> dict:
+    """One `vrsim ARGS` in `folder`, spawned or forked (spawned whenever the case closes
+    descriptors, limits file sizes or sets variables): exit code, time, peak RSS (MB),
     traceback, hang."""
-    raw = (fork_invocation if fork else spawn_invocation)(folder, args, timeout)
+    if opts:
+        raw = spawn_invocation(folder, args, timeout, opts)
+    else:
+        raw = (fork_invocation if fork else spawn_invocation)(folder, args, timeout)
     err = raw.pop("err")
     return {"args": args, **raw, "traceback": b"Traceback (most recent call last)" in err,
             "stderr": err[-2000:].decode("utf-8", "replace")}
+
+
+def _tree(folder: Path) -> dict:
+    """relative name -> (kind, content or link target) of everything under `folder`."""
+    import stat as st
+
+    out = {}
+    for path in folder.rglob("*"):
+        name = path.relative_to(folder).as_posix()
+        try:
+            mode = os.lstat(path).st_mode
+            if st.S_ISLNK(mode):
+                out[name] = ("link", os.readlink(path))
+            elif st.S_ISREG(mode):
+                out[name] = ("file", path.read_bytes())
+            else:
+                out[name] = ("dir" if st.S_ISDIR(mode) else "special", None)
+        except OSError:
+            out[name] = ("gone", None)
+    return out
 
 
 def run_case(case: Case, root: Path, timeout: float, fork: bool = False) -> Case:
@@ -882,20 +1071,39 @@ def run_case(case: Case, root: Path, timeout: float, fork: bool = False) -> Case
     try:
         materialise(work, case.files)
         before = sorted(p.name for p in folder.iterdir())
+        opts = {k: getattr(case, k) for k in ("close", "fsize", "env")
+                if getattr(case, k) not in ((), -1, {})}
         for args in case.commands:
             if STOP.is_set():
                 case.results = []  # a case is reported whole or not at all
                 return case
-            result = run_invocation(work, args, timeout, fork)
+            made = _tree(work) if case.targets is not None else None
+            result = run_invocation(work, args, timeout, fork, opts)
             if STOP.is_set():  # killed by the corpus's own signal handler, not a finding
                 case.results = []
                 return case
             command = args[0]
             result["allowed"] = list(ALLOWED.get(command, (0, 1, 2)))
             result["wrong_code"] = not result["hang"] and result["code"] not in result["allowed"]
-            partials = [str(p) for p in work.rglob("*.partial")]
-            result["half_written"] = partials
+            partials = [str(p) for p in work.rglob("*.partial")
+                        if made is None or p.relative_to(work).as_posix() not in made]
+            result["half_written"] = partials  # (a case's own .partial files are not)
             result["outside"] = sorted(p.name for p in folder.iterdir()) != before
+            result["touched"], result["stray"] = [], []
+            if made is not None:
+                now = _tree(work)
+                # a target "x" may be replaced and new files may appear under it; one
+                # ending in "/" or "-" may also change what was under it before (the
+                # kernel cache); a user's file inside a frames folder is not the run's
+                prefix = lambda n: any(t[-1] in "/-" and n.startswith(t)  # noqa: E731
+                                       for t in case.targets)
+                mine = lambda n: n in case.targets or prefix(n) or any(  # noqa: E731
+                    n.startswith(t + "/") for t in case.targets)
+                result["touched"] = sorted(n for n in made if n not in case.targets and
+                                           not prefix(n) and now.get(n) != made[n])
+                result["stray"] = sorted(n for n in now if n not in made and not mine(n))
+            result["spam"] = len(result["stderr"].splitlines()) > 20 if \
+                len(result["stderr"]) < 2000 else result["stderr"].count("\n") > 20
             result["nan_output"] = False
             if command == "run" and result["code"] == 0:
                 for out in list(work.glob("out*.csv")):
@@ -1049,6 +1257,10 @@ def main(argv=None) -> int:
                 except (ProcessLookupError, PermissionError):
                     pass
 
+    global WARM_CACHE  # what the cache cases copy and damage: the cache children use
+    WARM_CACHE = Path(os.environ.get("VRSIM_CACHE_DIR") or os.environ.get("NUMBA_CACHE_DIR")
+                      or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+                      / "vrsim" / "numba")
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     cases = build(args.only, args.full)
     for case, key in zip(cases, case_keys(cases)):
@@ -1106,7 +1318,8 @@ def main(argv=None) -> int:
                     continue
                 done.append(case)
                 bad = [r for r in case.results if r["traceback"] or r["hang"] or
-                       r["wrong_code"] or r["half_written"] or r["outside"]]
+                       r["wrong_code"] or r["half_written"] or r["outside"] or
+                       r.get("touched") or r.get("stray") or r.get("spam")]
                 if bad:
                     r = bad[0]
                     print(f"[{i}/{len(cases)}] {case.category} {case.name!r}: "
@@ -1114,7 +1327,10 @@ def main(argv=None) -> int:
                           f"{' HANG' if r['hang'] else ''}"
                           f"{' TRACEBACK' if r['traceback'] else ''}"
                           f"{' PARTIAL' if r['half_written'] else ''}"
-                          f"{' OUTSIDE' if r['outside'] else ''}: "
+                          f"{' OUTSIDE' if r['outside'] else ''}"
+                          f"{' TOUCHED ' + str(r['touched']) if r.get('touched') else ''}"
+                          f"{' STRAY ' + str(r['stray']) if r.get('stray') else ''}"
+                          f"{' SPAM' if r.get('spam') else ''}: "
                           f"{r['stderr'].strip().splitlines()[-1] if r['stderr'].strip() else ''}"
                           [:400], flush=True)
                 elif i % 100 == 0:
@@ -1138,7 +1354,8 @@ def main(argv=None) -> int:
         return 128 + {"SIGINT": 2, "SIGTERM": 15}[meta["interrupted"]]
     bad = summary["total"]
     return 1 if bad["tracebacks"] or bad["hangs"] or bad["wrong_exit_codes"] or \
-        bad["half_written"] or bad["outside"] else 0
+        bad["half_written"] or bad["outside"] or bad.get("touched") or bad.get("stray") \
+        or bad.get("spam") else 0
 
 
 def summarise(cases: list[Case]) -> dict:
@@ -1160,6 +1377,8 @@ def summarise(cases: list[Case]) -> dict:
                 s["half_written"] += bool(r["half_written"])
                 s["outside"] += r["outside"]
                 s["nan_outputs"] += r["nan_output"]
+                for k in ("touched", "stray", "spam"):
+                    s[k] = s.get(k, 0) + bool(r.get(k))
                 code = str(r["code"])
                 s["exit_codes"][code] = s["exit_codes"].get(code, 0) + 1
                 if (r["rss_mb"] or 0) > s["peak_rss_mb"]:

@@ -15,6 +15,13 @@ never read again. numba also keys by argument types and CPU, so another machine
 recompiles by itself. When that folder cannot be created or written, kernels are
 compiled in memory for the run (a few seconds each time) and `cache_note()` says why.
 
+A cache that cannot break a run: an entry that fails to load (a truncated or empty file,
+random bytes: an interrupted compile, a full disk, a bad copy) is removed and compiled
+again, with one line on stderr naming the folder; a save that fails (a full disk,
+permissions) leaves the kernels compiled for this run only, also said once. Files are
+written to a temporary name, flushed and renamed, so a killed compile leaves no
+half-written entry. `vrsim cache --clear` removes the cache (`clear_cache`).
+
 First run: the first compilation of a run prints one line on stderr ("compiling ...") and
 `compile_report()` gives the seconds spent compiling, which `vrsim run` prints after it.
 """
@@ -309,6 +316,38 @@ def _unliteral_call_template(self, args, kws):
 
 from numba.core import caching  # noqa: E402
 
+_SAID: set = set()  # the notices of this process, each said once
+_SAVES = {"on": True}  # False after a save failed: this run compiles in memory only
+
+
+def _say_once(kind: str, text: str) -> None:
+    """One line on stderr per kind of notice and process; nothing when stderr is closed."""
+    if kind in _SAID:
+        return
+    _SAID.add(kind)
+    try:
+        if sys.stderr is not None:
+            print(f"vrsim: {text}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+def _why(exc: BaseException) -> str:
+    text = getattr(exc, "strerror", None) or str(exc).splitlines()[0:1]
+    text = text if isinstance(text, str) else (text[0] if text else "")
+    return f"{type(exc).__name__}: {text[:80]}" if text else type(exc).__name__
+
+
+def _entry_files(folder: str, base: str) -> list[str]:
+    """The index and data files of one function's cache entries (`base`.nbi, .N.nbc)."""
+    import re
+
+    pattern = re.compile(re.escape(base) + r"(\.nbi|\.\d+\.nbc)")
+    try:
+        return [os.path.join(folder, n) for n in os.listdir(folder) if pattern.fullmatch(n)]
+    except OSError:
+        return []
+
 
 class _SafeIndexDataCacheFile(caching.IndexDataCacheFile):
     """numba's cache file, safe for processes that save at the same time.
@@ -326,7 +365,10 @@ class _SafeIndexDataCacheFile(caching.IndexDataCacheFile):
 
     def save(self, key, data):
         with _folder_lock(self._cache_path):
-            overloads = self._load_index()
+            try:
+                overloads = self._load_index()
+            except Exception:  # noqa: BLE001 - unreadable: its entries are lost anyway
+                overloads = {}
             name = overloads.get(key)
             if name is None:
                 taken = set(overloads.values())
@@ -340,10 +382,62 @@ class _SafeIndexDataCacheFile(caching.IndexDataCacheFile):
                 self._save_index(overloads)
 
 
+    @contextlib.contextmanager
+    def _open_for_write(self, filepath):
+        """numba's (a temporary name, renamed over `filepath`), with the data flushed to
+        disk before the rename: after a power loss the name holds the whole file or the
+        previous one, never an empty or partial file."""
+        import uuid
+
+        tmpname = f"{filepath}.tmp.{uuid.uuid4().hex[:16]}"
+        try:
+            with open(tmpname, "wb") as f:
+                yield f
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmpname, filepath)
+        except BaseException:
+            try:
+                os.unlink(tmpname)
+            except OSError:
+                pass
+            raise
+
+
 class _SafeFunctionCache(caching.FunctionCache):
     def __init__(self, py_func):
         super().__init__(py_func)
         self._cache_file.__class__ = _SafeIndexDataCacheFile  # same state, safe save
+
+    def save_overload(self, sig, data):
+        """numba's save; when it fails (a full disk, permissions changed), this kernel and
+        every later one are compiled for this run only, and a line says so."""
+        if not _SAVES["on"]:
+            return
+        try:
+            super().save_overload(sig, data)
+        except (OSError, caching.pickle.PicklingError) as exc:
+            _SAVES["on"] = False
+            why = f"cannot save compiled kernels in {self._cache_path} ({_why(exc)})"
+            _CACHE["note"] = why  # the run's "compiled in ..." line says it too
+            _say_once("save", f"{why}: compiled for this run only")
+
+    def _discard_entries(self, exc: BaseException) -> None:
+        """Remove this function's unreadable cache files (under the save lock), so the
+        compile that follows writes fresh ones; say so once, naming the folder."""
+        base = self._cache_file._index_name[:-len(".nbi")]
+        try:
+            with _folder_lock(self._cache_path):
+                for path in _entry_files(self._cache_path, base):
+                    try:
+                        os.unlink(path)
+                    except OSError:
+                        pass
+        except OSError:
+            pass  # no lock file: the compile's save overwrites the index anyway
+        _say_once("load", f"the kernel cache in {self._cache_path} held an unreadable "
+                          f"entry ({_why(exc)}); it was removed and is compiled again "
+                          f"(`vrsim cache --clear` empties the cache)")
 
     def load_overload(self, sig, target_context):
         """numba's, without its first step: numba refreshes the target context before
@@ -360,9 +454,13 @@ class _SafeFunctionCache(caching.FunctionCache):
         # the entry's pickle may import numba.np.arraymath (environment._rebuild_env;
         # a.sum(), np.sort, the stepped kernels): with BLAS blocked, as the refresh
         first = "numba.np.arraymath" not in sys.modules
-        with self._guard_against_spurious_io_errors(), \
-                (_blas_blocked() if first else contextlib.nullcontext()):
-            return self._load_overload(sig, target_context)
+        try:
+            with self._guard_against_spurious_io_errors(), \
+                    (_blas_blocked() if first else contextlib.nullcontext()):
+                return self._load_overload(sig, target_context)
+        except Exception as exc:  # noqa: BLE001 - truncated, empty, foreign: any of pickle's
+            self._discard_entries(exc)
+            return None  # numba compiles it, and saves a good entry
 
     def _index_key(self, sig, codegen):
         """numba keys a closure by the pickle of its cells, and a kernel's pickle carries
@@ -413,3 +511,34 @@ def _folder_lock(folder: str):
             yield
         finally:
             fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+# ----------------------------------------------------------------------------- clearing
+
+
+def clear_cache() -> tuple[Path, int, int]:
+    """Remove the compiled kernels of every vrsim version from the cache base folder
+    (`src-*` folders: numba's index and data files, temporary files and vrsim's lock and
+    marker files in them); anything else there is left alone. Returns (base folder,
+    files removed, bytes freed)."""
+    import re
+
+    base = _default_dir()
+    ours = re.compile(r".+\.(nbi|nbc)|.+\.(nbi|nbc)\.tmp\.[0-9a-f]+|\.vrsim-save\.lock"
+                      r"|\.probe-.+|\.?stepped-.+\.compiled(\.lock)?|\..+\.partial")
+    removed = freed = 0
+    for folder in sorted(base.glob("src-*")) if base.is_dir() else []:
+        for root, dirs, files in os.walk(folder, topdown=False):
+            for name in files:
+                if ours.fullmatch(name):
+                    path = os.path.join(root, name)
+                    try:
+                        size = os.lstat(path).st_size
+                        os.unlink(path)
+                    except OSError:
+                        continue
+                    removed += 1
+                    freed += size
+            with contextlib.suppress(OSError):
+                os.rmdir(root)  # only when emptied
+    return base, removed, freed

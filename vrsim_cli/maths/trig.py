@@ -12,6 +12,10 @@ rounds correctly everywhere (numpy does not contract them into FMAs):
 - the minimax polynomials of fdlibm's __kernel_sin and __kernel_cos (Sun Microsystems,
   1993) on [-pi/4, pi/4], error < 1 ulp of the result.
 Accuracy: within 1 ulp of libm over the tested range (tests/test_trig.py).
+
+Every sine and cosine on the simulation path goes through here (the kinematic drive,
+keyframe slerps, 2D angle tracks: issue 53 found the car's drive, numpy's sin of the
+heading, differing in the last bit from t = 3.3 s without FMA).
 """
 
 from __future__ import annotations
@@ -72,3 +76,13 @@ def cos(x):
     """cos x (rad), the same bits on every CPU (a float for a float)."""
     out = sin_cos(x)[1]
     return float(out) if np.ndim(x) == 0 else out
+
+
+def sin_over_x(x):
+    """sin(x) / x (1 at x = 0), the same bits on every CPU: numpy's `sinc(x / pi)`
+    without libm (an array for an array)."""
+    x = np.asarray(x, dtype=float)
+    s = sin_cos(x)[0]
+    zero = x == 0.0
+    out = np.where(zero, 1.0, s / np.where(zero, 1.0, x))
+    return float(out) if out.ndim == 0 else out

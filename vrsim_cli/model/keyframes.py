@@ -67,6 +67,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vrsim_cli.maths.products import matmul, dot
+from vrsim_cli.maths.trig import sin_cos, sin_over_x
 
 from vrsim_cli.maths.spatial import (quat_from_euler_deg, quat_left_matrix, quat_multiply,
                                quat_to_matrix, unit)
@@ -442,8 +443,8 @@ def _quat_log(q):
 def _quat_exp(r):
     """(..., 3) half rotation vector -> (..., 4) unit quaternion."""
     half = np.linalg.norm(r, axis=-1, keepdims=True)
-    # sin(x)/x, written with numpy's sinc (sin(pi y)/(pi y)) so it is exact at x = 0
-    return np.concatenate([np.cos(half), r * np.sinc(half / np.pi)], axis=-1)
+    # cos and sin(x)/x from maths.trig (1 at x = 0), not libm: the same bits on every CPU
+    return np.concatenate([sin_cos(half)[1], r * sin_over_x(half)], axis=-1)
 
 
 def slerp(p, q, h):
@@ -465,7 +466,7 @@ def _eval_rotation(track: Track, u, dudt):
         # the half-angle vector (a/2) n precomputed per segment, one matmul per time
         half = track.half[i] * s[:, None]
         angle = np.linalg.norm(half, axis=1, keepdims=True)
-        turn = np.concatenate([np.cos(angle), half * np.sinc(angle / np.pi)], axis=1)
+        turn = np.concatenate([sin_cos(angle)[1], half * sin_over_x(angle)], axis=1)
         value = matmul(track.left[i], turn[:, :, None])[:, :, 0]
         # d/dt [q_i exp(s log r)] q^-1 = q_i (log r) q_i^-1 ds/dt: constant per segment
         rate = track.omega[i] * sdot[:, None]

@@ -233,6 +233,25 @@ def tum_folder_problem(folder: Path, entities=None, scene_file=None) -> str | No
     return None
 
 
+def folder_write_problem(folder: Path) -> str | None:
+    """Why a new file cannot be made in `folder` (or, when it does not exist yet, in the
+    nearest folder above it that does), or None. Found by making one, a temporary file
+    removed at once: permission bits do not tell (root passes `os.access` on a read-only
+    file system, or on sysfs)."""
+    import tempfile
+
+    folder = Path(os.path.abspath(folder))
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".vrsim-probe.",
+                                         suffix=PARTIAL_SUFFIX):
+            pass
+    except OSError as exc:
+        return f"folder '{folder}' is not writable ({exc.strerror or exc})"
+    return None
+
+
 def about(path_text: str, problem: str) -> str:
     """`problem` said about the path the user gave: "'out' is a folder; ...", or
     "'x.csv': the file name is ..." (a long name shortened in the middle)."""

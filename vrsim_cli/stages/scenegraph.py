@@ -30,6 +30,7 @@ import numpy as np
 from vrsim_cli.maths.products import matmul
 
 from vrsim_cli.maths.spatial import quat_multiply, quat_rotation_matrices
+from vrsim_cli.maths.trig import sin_cos, sin_over_x
 from vrsim_cli.model.keyframes import evaluate
 from vrsim_cli.model.model import Model
 from vrsim_cli.model.state import State
@@ -55,7 +56,7 @@ def local_motion(model: Model, times) -> tuple:
         if is_angle:  # 2D: degrees about z
             half = 0.5 * np.radians(value)
             quat[:, node] = 0.0
-            quat[:, node, 0], quat[:, node, 3] = np.cos(half), np.sin(half)
+            quat[:, node, 3], quat[:, node, 0] = sin_cos(half)  # not libm: same bits anywhere
             angvel[:, node, 2] = np.radians(rate)
         else:
             quat[:, node], angvel[:, node] = value, rate
@@ -79,22 +80,25 @@ def _drive(anim, t, pos, quat, vel, angvel) -> None:
     v, psi0, r = anim.drive_speed, anim.drive_heading0, anim.drive_yaw_rate
     psi = psi0 + r * t  # (n_t, n_drive)
     a = 0.5 * r * t
-    big_s = np.sinc(2.0 * a / np.pi)
-    big_k = np.sin(a) * np.sinc(a / np.pi)
-    int_sin = v * t * (np.sin(psi0) * big_s + np.cos(psi0) * big_k)  # v * integral of sin
-    int_cos = v * t * (np.cos(psi0) * big_s - np.sin(psi0) * big_k)  # v * integral of cos
-    half = 0.5 * psi
+    # maths.trig, not libm (numpy's sin and cos): libm's differ in the last bit by CPU
+    big_s = sin_over_x(2.0 * a)
+    big_k = sin_cos(a)[0] * sin_over_x(a)
+    sin_psi0, cos_psi0 = sin_cos(psi0)
+    int_sin = v * t * (sin_psi0 * big_s + cos_psi0 * big_k)  # v * integral of sin
+    int_cos = v * t * (cos_psi0 * big_s - sin_psi0 * big_k)  # v * integral of cos
+    sin_psi, cos_psi = sin_cos(psi)
+    sin_half, cos_half = sin_cos(0.5 * psi)
     zeros = np.zeros_like(psi)
     rate = np.broadcast_to(r, psi.shape)
     if anim.dimension == 3:
         offset = np.stack([int_sin, zeros, int_cos], axis=-1)
-        velocity = np.stack([v * np.sin(psi), zeros, v * np.cos(psi)], axis=-1)
-        turn = np.stack([np.cos(half), zeros, np.sin(half), zeros], axis=-1)
+        velocity = np.stack([v * sin_psi, zeros, v * cos_psi], axis=-1)
+        turn = np.stack([cos_half, zeros, sin_half, zeros], axis=-1)
         spin = np.stack([zeros, rate, zeros], axis=-1)
     else:
         offset = np.stack([int_cos, int_sin, zeros], axis=-1)
-        velocity = np.stack([v * np.cos(psi), v * np.sin(psi), zeros], axis=-1)
-        turn = np.stack([np.cos(half), zeros, zeros, np.sin(half)], axis=-1)
+        velocity = np.stack([v * cos_psi, v * sin_psi, zeros], axis=-1)
+        turn = np.stack([cos_half, zeros, zeros, sin_half], axis=-1)
         spin = np.stack([zeros, zeros, rate], axis=-1)
     pos[:, k] = anim.node_pos0[k] + offset
     vel[:, k] = velocity

@@ -14,6 +14,9 @@ def run_summary(model, result, *, frames=None, live_url=None, error=None,
                 interrupted_by=None, passes_through=None) -> dict:
     """The run as JSON-ready numbers (SI units; names say the unit)."""
     state = result.state
+    from vrsim_cli.stages.dynamics.rigid import energy_loss_warning
+
+    loss = energy_loss_warning(model, state)
     return {
         "ok": error is None and interrupted_by is None,
         "scene": model.name,
@@ -40,6 +43,7 @@ def run_summary(model, result, *, frames=None, live_url=None, error=None,
         "error": None if error is None else str(error),
         # shapes that met without a collision block (tools/pass_through): bodies, t_s, depth_m
         "passes_through": passes_through,
+        "warnings": [] if loss is None else [loss],  # numbers to distrust; still ok
     }
 
 
@@ -64,6 +68,7 @@ def format_run(summary: dict, profile: bool, realtime: bool) -> list[str]:
              f"{summary['wall_s']:.3f} s, "
              f"{'inf' if factor is None else significant(factor)}x real time{where}",
              f"state sha256:{summary['state_sha256']}"]
+    lines += [f"warning: {text}" for text in summary.get("warnings", [])]
     if realtime:
         lines.append(f"realtime: missed {summary['missed_deadlines']} of "
                      f"{plural(summary['frames'], 'frame deadline')} (worst "

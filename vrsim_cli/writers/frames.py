@@ -4,41 +4,136 @@ Layer 6. Image k shows loop frame k * every, at t = k * every / frame_rate (imag
 initial state). The states to draw are kept during the run and drawn when it ends: the
 default camera (`render.action_camera_path`) frames the moving bodies of the whole run,
 so it needs all of it. Each file is PNG through Pillow, written atomically, so a viewer
-or video encoder never reads half an image. When the run ends, frame files numbered
-beyond the last image of this run (left over from an earlier, longer run) are removed, so
-the folder holds one run's frames.
+or video encoder never reads half an image.
+
+The folder is vrsim's alone: before the run simulates, `frames_folder_problem` refuses a
+folder that holds anything but frames of an earlier run of the same scene file (each PNG
+carries a `vrsim-scene` text chunk, a digest of the scene file's path, `frames_tag`) and
+vrsim's own temporary files. So a run only ever replaces or removes its own frames: when
+it ends, those numbered beyond its last image (from an earlier, longer run) are removed,
+and the folder holds one run's frames.
 """
 
 from __future__ import annotations
 
+import hashlib
 import io
+import os
 import re
+import stat
+import struct
 from pathlib import Path
 
-from vrsim_cli.errors import OutputError
+from vrsim_cli.errors import InputError, OutputError
 from vrsim_cli.maths.camera import Camera
 from vrsim_cli.maths.spatial import quat_rotate
 from vrsim_cli.model.frames import FramesSpec
 from vrsim_cli.model.model import Model
 from vrsim_cli.model.state import State
-from vrsim_cli.scene.files import remove_stale_partials
+from vrsim_cli.scene.files import (folder_write_problem, is_partial, kind_of,
+                                   remove_stale_partials)
 from vrsim_cli.writers.atomic import AtomicFile
 
 FRAME_NAME = "frame_{:06d}.png"
 FRAME_PATTERN = re.compile(r"frame_(\d{6})\.png")
+TAG_KEY = b"vrsim-scene"  # the PNG tEXt keyword naming the scene a frame was rendered from
+TAG_READ_BYTES = 4096  # Pillow writes text chunks right after IHDR: within the first bytes
 
 
-def encode_png(image) -> bytes:
-    """PNG bytes of `image`: (height, width, 3) uint8 RGB, row 0 at the top (Pillow)."""
+def frames_tag(scene_file: str | os.PathLike) -> str:
+    """16 hex digits of sha256 over the scene file's resolved path: what marks a frame as
+    rendered from this scene (the path itself may hold any bytes; a digest is ASCII)."""
+    return hashlib.sha256(os.fsencode(Path(scene_file).resolve())).hexdigest()[:16]
+
+
+def encode_png(image, tag: str | None = None) -> bytes:
+    """PNG bytes of `image`: (height, width, 3) uint8 RGB, row 0 at the top (Pillow);
+    `tag` (`frames_tag`) goes into a `vrsim-scene` tEXt chunk."""
     import numpy as np
-    from PIL import Image
+    from PIL import Image, PngImagePlugin
 
     image = np.ascontiguousarray(image, dtype=np.uint8)
     if image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"expected an (height, width, 3) image, got shape {image.shape}")
+    info = None
+    if tag is not None:
+        info = PngImagePlugin.PngInfo()
+        info.add_text(TAG_KEY.decode(), tag)
     out = io.BytesIO()
-    Image.fromarray(image, "RGB").save(out, format="PNG")
+    Image.fromarray(image, "RGB").save(out, format="PNG", pnginfo=info)
     return out.getvalue()
+
+
+def png_tag(path: Path) -> str | None:
+    """The `vrsim-scene` tag of the PNG at `path` (a regular file), or None: read from its
+    first chunks, never the whole image."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | os.O_NONBLOCK)
+    except OSError:
+        return None
+    with os.fdopen(fd, "rb") as handle:
+        data = handle.read(TAG_READ_BYTES)
+    if data[:8] != b"\x89PNG\r\n\x1a\n":
+        return None
+    pos = 8
+    while pos + 8 <= len(data):
+        (length,) = struct.unpack(">I", data[pos:pos + 4])
+        kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + length]
+        if kind == b"IDAT" or len(body) < length:
+            return None
+        if kind == b"tEXt" and body.startswith(TAG_KEY + b"\0"):
+            return body[len(TAG_KEY) + 1:].decode("latin-1")
+        pos += 12 + length
+    return None
+
+
+def frames_folder_problem(folder: Path, tag: str) -> str | None:
+    """Why frames of the scene tagged `tag` cannot be written into `folder`, or None.
+
+    The folder must be absent (it is created) or hold only regular `frame_NNNNNN.png`
+    files carrying `tag` (frames of an earlier run of this scene, which this run replaces
+    or removes) and vrsim's temporary files. Anything else (the user's own images, a
+    frame of another scene, a link or FIFO named like a frame) is refused, because the run
+    would overwrite or delete it."""
+    try:
+        st = os.lstat(folder)
+    except FileNotFoundError:
+        unwritable = folder_write_problem(folder)
+        return None if unwritable is None else f"cannot be created: {unwritable}"
+    except (OSError, ValueError) as exc:
+        return f"cannot be used: {getattr(exc, 'strerror', None) or exc}"
+    if stat.S_ISLNK(st.st_mode):
+        return "is a symbolic link; give the folder it points to"
+    if not stat.S_ISDIR(st.st_mode):
+        return f"is {kind_of(st.st_mode)}; frames go to a folder"
+    if folder_write_problem(folder) is not None:
+        return "is not writable"
+    try:
+        names = sorted(os.listdir(folder))
+    except OSError as exc:
+        return f"cannot list the folder: {exc.strerror or exc}"
+    foreign = []
+    for name in names:
+        if is_partial(name):
+            continue  # a temporary file of vrsim's (swept when stale)
+        path = folder / name
+        try:
+            mode = os.lstat(path).st_mode
+        except OSError:
+            continue  # gone meanwhile
+        if not FRAME_PATTERN.fullmatch(name):
+            foreign.append(f"'{name}'")
+        elif not stat.S_ISREG(mode):
+            foreign.append(f"'{name}' ({kind_of(mode)})")
+        elif png_tag(path) != tag:
+            foreign.append(f"'{name}' (not a frame of this scene)")
+    if foreign:
+        listed = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more"
+                                           if len(foreign) > 3 else "")
+        return (f"holds {listed}; frames go to an empty or new folder, or one holding only "
+                f"the frames of an earlier run of this scene (vrsim replaces and removes "
+                f"frames there, and nothing else)")
+    return None
 
 
 class FramesWriter:
@@ -47,8 +142,12 @@ class FramesWriter:
     `render(state, overlay, camera)` and `close()` (see `render.open_renderer`); `video`,
     if given, receives every image too (see `writers.video.VideoWriter`)."""
 
-    def __init__(self, model: Model, spec: FramesSpec, renderer, label=None, video=None):
+    def __init__(self, model: Model, spec: FramesSpec, renderer, label=None, video=None,
+                 tag: str | None = None):
+        """`tag`: `frames_tag` of the scene file, written into every frame; only frames
+        carrying it are removed at the end (None: frames untagged, as those removed)."""
         self.model = model
+        self.tag = tag
         self.spec = spec
         self.renderer = renderer
         self.label = label
@@ -81,7 +180,7 @@ class FramesWriter:
                 out = AtomicFile(self.spec.dir / FRAME_NAME.format(self.images),
                                  sweep_stale=False)
                 try:
-                    out.write(encode_png(image))
+                    out.write(encode_png(image, self.tag))
                     out.commit()
                 finally:
                     out.discard()
@@ -99,7 +198,10 @@ class FramesWriter:
             match = FRAME_PATTERN.fullmatch(path.name)
             if match and int(match.group(1)) >= self.images:
                 try:
-                    path.unlink()
+                    # only a frame of this scene's earlier run (checked before the run,
+                    # again now: the folder may have changed meanwhile)
+                    if stat.S_ISREG(os.lstat(path).st_mode) and png_tag(path) == self.tag:
+                        path.unlink()
                 except OSError:
                     pass  # a stale file we cannot remove is not worth failing the run for
 

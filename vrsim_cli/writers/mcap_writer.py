@@ -29,6 +29,7 @@ integrator and up axis, so a trajectory file always says how it was made.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -90,6 +91,36 @@ class _RecordingFile:
         return self._call("flush")
 
 
+class _SdkErrors(logging.Filter):
+    """Holds back the SDK's "error logging message: McapError(...)" records (one per
+    message once a write failed: 42 000 lines on stderr for a run on a full disk); the
+    run stops at the first failed write instead and says why once (`McapWriter.log`).
+    Installed on the SDK's logger for the writer's life."""
+
+    LOGGER = "foxglove"
+
+    def __init__(self):
+        super().__init__()
+        self.held = 0
+        logging.getLogger(self.LOGGER).addFilter(self)
+        for handler in logging.getLogger().handlers + [logging.lastResort]:
+            if handler is not None:
+                handler.addFilter(self)  # records of child loggers reach these unfiltered
+
+    def filter(self, record) -> bool:
+        if record.name.startswith(self.LOGGER) and "error logging message" in \
+                record.getMessage():
+            self.held += 1
+            return False
+        return True
+
+    def remove(self) -> None:
+        logging.getLogger(self.LOGGER).removeFilter(self)
+        for handler in logging.getLogger().handlers + [logging.lastResort]:
+            if handler is not None:
+                handler.removeFilter(self)
+
+
 class McapWriter:
     """Writes a run to an MCAP file (`path`), to a live server (`live`, a `live.LiveServer`),
     or to both, with the same channels and messages."""
@@ -107,6 +138,7 @@ class McapWriter:
         self.outlets: list[Outlet] = []
         self.mcap = None
         self.file = None
+        self.sdk_errors = _SdkErrors() if path is not None else None
         up = getattr(model.output, "up", "y")
         self.scene_rotation = SCENE_TO_WORLD[up]
         try:
@@ -186,6 +218,10 @@ class McapWriter:
                 outlet.log(topic, data, ns)
         except (OSError, RuntimeError) as exc:
             raise self._error(exc) from None
+        if self.file is not None and self.file.error is not None:
+            # the SDK only logs a failed write, and fails every later one: stop the run
+            # now (the previous file stays) rather than at the end
+            raise self._error(self.file.error)
 
     def publish_entities(self, entities: dict, ns: int) -> None:
         """A foxglove.SceneUpdate of `entities` {id: SceneEntity} on /scene; remembered for
@@ -248,6 +284,7 @@ class McapWriter:
                 raise error from None
         if self.out is not None:
             self.out.commit()
+        self._release()
 
     def abort(self) -> None:
         if self.mcap is not None:
@@ -258,6 +295,12 @@ class McapWriter:
             self.mcap = None
         if self.out is not None:
             self.out.discard()
+        self._release()
+
+    def _release(self) -> None:
+        if self.sdk_errors is not None:
+            self.sdk_errors.remove()
+            self.sdk_errors = None
 
 
 def _entity_columns(model: Model, state: State):
