@@ -260,7 +260,23 @@ SITES = {
                                        "test_regress_scene_names_did_you_mean"]),
     "vrsim_cli/cli.py": (2, ["test_the_tolerance_examples_of_compare",
                              "test_sweep_examples_are_accepted"]),  # --reference's help
+    "vrsim_cli/api.py": (1, ["test_api_body_names_did_you_mean"]),
 }
+
+
+def test_api_body_names_did_you_mean():
+    """The Python API's pushes name a body; a misspelt one gets the nearest name, and
+    that name then takes the impulse (v changes by J / m)."""
+    import vrsim_cli
+
+    sim = vrsim_cli.simulate(vrsim_cli.load(BASE + "bodies: [{name: ball, mass: 2}]"))
+    with pytest.raises(KeyError) as err:
+        sim.apply_impulse("bal", [1.0, 0.0, 0.0])
+    hint = re.search(r"did you mean '([^']+)'\?", str(err.value))
+    assert hint, err.value
+    before = sim.state.body_vel[0].copy()
+    sim.apply_impulse(hint.group(1), [1.0, 0.0, 0.0])
+    assert (sim.state.body_vel[0] - before).tolist() == [0.5, 0.0, 0.0]
 
 
 def test_every_suggestion_site_has_a_case():
