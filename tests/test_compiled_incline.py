@@ -1,28 +1,30 @@
 """Issue 48 (c): inclines as a class, in the compiled contact step.
 
-The compiled step (`kernels.stepped`) takes impacts as velocity jumps at the step's start
-and moves every body with the scene's integrator from its post-impact velocity, resting
-impulses entering as a constant force; islands of a few contacts are solved to
-convergence. With an integrator exact for constant forces (verlet, rk4) a body in steady
-contact then follows the closed forms of constant acceleration exactly. Truths, each
-written here from first principles (nothing of vrsim's computes them):
+The compiled step (`kernels.stepped`) moves a body that took a contact impulse by
+symplectic Euler in that step (x1 = x0 + dt v1, the contact solve's model), and solves
+islands of a few contacts to convergence. So its velocities follow the closed forms of
+constant acceleration exactly, and its positions follow symplectic Euler's own closed
+forms, x_n = x_0 + dt (v_1 + ... + v_n): for a constant acceleration a from rest,
+x = a t (t + dt) / 2 (first order: off the exact a t^2 / 2 by dt / t relative). Truths,
+each written here from first principles (nothing of vrsim's computes them):
 
 - a body that friction can hold (mu > tan th: a box, a cylinder standing on its cap, a
   capsule lying along the fall line) stays where it is;
 - one that slides (mu < tan th) moves down the fall line at a = g (sin th - mu cos th),
-  x = a t^2 / 2, without turning;
+  without turning;
 - a sphere that rolls (mu >= 2/7 tan th) rolls at a = 5/7 g sin th; a capsule lying across
   the fall line rolls at a = g sin th / (1 + I_axis / (m r^2)), with I_axis of a uniform
   capsule in closed form (`capsule_moments`);
 - a ball thrown sliding on level ground decelerates at mu g while its spin grows at
-  5/2 mu g / r, and rolls from t* = 2 v0 / (7 mu g) on at 5/7 v0.
+  5/2 mu g / r, and rolls from t* = 2 v0 / (7 mu g) on at 5/7 v0: the step's velocities
+  are v_k = max(v0 - mu g k dt, 5/7 v0), its positions their sums.
 
 The slope's normal is turned by a random yaw about the vertical too, so no case lines up
 with an axis. Tolerances: 1e-9 m or relative and 1e-9 rad, issue 48's bounds (measured:
-<= 1e-12). The thrown ball's transition happens inside one step, which the step does not
-split (finding that instant is issue 49's exact path): its speed and spin after it are
-exact, its position carries that one step's error, at most mu g h^2 / 8 (the friction
-impulse of a whole step spread at half weight against the exact piecewise motion).
+<= 1e-12). Before the islands were solved to convergence (8 sweeps), 81 of these 120
+cases failed (the first steps up to 2e-2 off Coulomb's law); the exact a t^2 / 2 needs
+the mean-velocity position rule kept on branch wip/moreau-jean (tests/test_stepped_pivot.py
+says why it is not on main).
 """
 
 from __future__ import annotations
@@ -214,7 +216,7 @@ def test_a_body_that_slides_follows_the_closed_form(seed):
     worst_x = worst_v = worst_turn = 0.0
     for s in states[1:]:
         t = s.t
-        x = 0.5 * a * t * t
+        x = 0.5 * a * t * (t + dt)  # symplectic Euler's sum of the v_k = a k dt
         worst_x = max(worst_x, float(np.linalg.norm(s.body_pos[1] - position - x * down)) / x)
         worst_v = max(worst_v, float(np.linalg.norm(s.body_vel[1] - a * t * down)) / (a * t))
         worst_turn = max(worst_turn, turned(q, s.body_quat[1]))
@@ -248,7 +250,7 @@ def test_a_sphere_or_capsule_rolls_at_the_closed_form(seed):
     for s in states[1:]:
         t = s.t
         worst_x = max(worst_x, float(np.linalg.norm(
-            s.body_pos[1] - position - 0.5 * a * t * t * down)))
+            s.body_pos[1] - position - 0.5 * a * t * (t + dt) * down)))
         worst_v = max(worst_v, float(np.linalg.norm(s.body_vel[1] - a * t * down)))
         # rolling: the contact point does not slip, w x (-r n) + v = 0
         slip = s.body_vel[1] + np.cross(s.body_angvel[1], -r * normal)
@@ -270,21 +272,19 @@ def test_a_ball_thrown_sliding_ends_rolling_at_the_closed_form_time_and_speed(se
                              r, [1.0, 0.0, 0.0, 0.0], mu, duration,
                              velocity=(v0 * direction).tolist())
     v_star = 5.0 / 7.0 * v0
-    x_star = v0 * t_star - 0.5 * mu * G * t_star ** 2
-    one_step = mu * G * dt * dt / 8.0
     up = np.array([0.0, 1.0, 0.0])
+    speeds = []  # v_k of the steps so far, and their sum (symplectic Euler's x_n / dt)
     for s in states[1:]:
         t = s.t
+        n = int(round(t / dt))
+        while len(speeds) < n:
+            speeds.append(max(v0 - mu * G * (len(speeds) + 1) * dt, v_star))
         v = s.body_vel[1]
         slip = v + np.cross(s.body_angvel[1], -r * up)
-        if t < t_star - dt:  # sliding: v = v0 - mu g t, slip = v0 - 7/2 mu g t
-            assert np.linalg.norm(v - (v0 - mu * G * t) * direction) <= 1e-9 * v0, t
-            assert np.linalg.norm(slip - (v0 - 3.5 * mu * G * t) * direction) <= 1e-9 * v0
-            x = v0 * t - 0.5 * mu * G * t * t
-            assert np.linalg.norm(s.body_pos[1, [0, 2]] - x * direction[[0, 2]]) <= 1e-9
-        elif t > t_star + dt:  # rolling at 5/7 v0, without slip
-            assert np.linalg.norm(v - v_star * direction) <= 1e-9 * v0, (t, v, v_star)
+        assert np.linalg.norm(v - speeds[-1] * direction) <= 1e-9 * v0, (t, v, speeds[-1])
+        x = dt * math.fsum(speeds)
+        assert np.linalg.norm(s.body_pos[1, [0, 2]] - x * direction[[0, 2]]) <= 1e-9, t
+        if t > t_star + dt:  # rolling, without slip
             assert np.linalg.norm(slip) <= 1e-9 * v0, (t, slip)
-            x = x_star + v_star * (t - t_star)
-            err = float(np.linalg.norm(s.body_pos[1, [0, 2]] - x * direction[[0, 2]]))
-            assert err <= one_step + 1e-9, (t, err, one_step)
+        elif t < t_star - dt:  # sliding: slip = v0 - 7/2 mu g t
+            assert np.linalg.norm(slip - (v0 - 3.5 * mu * G * t) * direction) <= 1e-9 * v0
