@@ -21,8 +21,8 @@ each written here from first principles (nothing of vrsim's computes them):
 
 The slope's normal is turned by a random yaw about the vertical too, so no case lines up
 with an axis. Tolerances: 1e-9 m or relative and 1e-9 rad, issue 48's bounds (measured:
-<= 1e-12). Before the islands were solved to convergence (8 sweeps), 81 of these 120
-cases failed (the first steps up to 2e-2 off Coulomb's law); the exact a t^2 / 2 needs
+<= 1e-12). Before the islands were solved to convergence (8 sweeps; d504251), 31 of
+these 120 cases failed (the first steps up to 2e-2 off Coulomb's law); the exact a t^2 / 2 needs
 the mean-velocity position rule kept on branch wip/moreau-jean (tests/test_stepped_pivot.py
 says why it is not on main).
 """
