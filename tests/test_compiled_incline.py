@@ -99,8 +99,8 @@ def turned(q0, q1) -> float:
 
 
 def draw(seed: int, kind: str):
-    """(dt, integrator, th, yaw, mass, shape (YAML flow), height of the centre above the
-    plane, body-frame extra turn about the normal, quaternion) of one case."""
+    """(rng, dt s, integrator, th rad, yaw rad, mass kg) of one case; the rng goes on to
+    draw the rest (friction, sizes) in the test."""
     rng = np.random.default_rng([48, 3, seed, len(kind)])
     dt = float(rng.choice([1 / 240, 1 / 120, 1 / 60, 1 / 30]))
     integrator = str(rng.choice(["verlet", "rk4"]))
