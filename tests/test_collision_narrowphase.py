@@ -448,22 +448,105 @@ def test_a_capsule_capsule_gap_where_fcls_gjk_ends_off():
     assert -depth.max() == pytest.approx(0.25 - 4.175e-9, abs=1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason="capsules within 1e-3 rad of parallel whose axes "
-                   "overlap get two contacts at the overlap's ends, measured across the "
-                   "axes' bisector: the gap is off by about d theta^2 / 8 (1.9e-9 m here, "
-                   "axes 1 m apart, 1.2e-4 rad), and by more where the least distance lies "
-                   "between the ends (docs/collision-response.md, Known limits)")
 def test_nearly_parallel_capsules_report_their_exact_gap():
     """The pose hypothesis drew (2026-12-04): capsules (r 0.5 and 0.25, half length 1),
     axes 1 m apart in z, one tilted by 1.2e-4 rad towards the other: the exact gap is
-    that of the tilted axis' near end, 0.2498779296880 m; the manifold's ends gave
-    0.2498779315504 m."""
+    that of the tilted axis' near end, 0.2498779296880 m; the two ends of the overlap
+    alone gave 0.2498779315504 m (the least distance joins them as a third point)."""
     cm, world = setup(capsule(0.5, 2.0), capsule(0.25, 2.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0),
                       quat_normalize((0.0, 0.0, 0.0, 1.0)),
                       quat_normalize((0.0, 0.0, 1.0, 6.103515625e-05)))
     assert _nearly_parallel_overlap(world)
     _, _, _, depth = narrow_phase(cm, world, np.array([0]), np.array([1]), np.inf)
     assert -depth.max() == pytest.approx(_capsule_capsule_gap(cm, world), abs=1e-9)
+
+
+def test_coincident_capsules_nearly_antiparallel_are_as_deep_as_both_radii():
+    """The pose hypothesis drew in CI (2026-12-06): two capsules r 0.5, half length 1, at
+    the same centre, one turned by pi - 1e-3 about z: the axes cross at the centre, so
+    the depth is r + r = 1; the overlap's ends alone gave 0.999."""
+    cm, world = setup(capsule(0.5, 2.0), capsule(0.5, 2.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0),
+                      I, quat_normalize((0.0, 0.0, 0.5, 0.00025)))
+    _, _, _, depth = narrow_phase(cm, world, np.array([0]), np.array([1]), np.inf)
+    assert depth.max() == pytest.approx(1.0, abs=1e-12)
+
+
+def _least_axis_distance(a0, b0, a1, b1):
+    """Independent truth: the least distance between segments a0b0 and a1b1. The distance
+    of a point of segment 1 to segment 0 (its projection clamped: exact) is convex along
+    segment 1: dense samples, then a bounded scalar search around the best, to
+    round-off."""
+    from scipy.optimize import minimize_scalar
+
+    d0 = b0 - a0
+
+    def along(t):
+        p = a1 + t * (b1 - a1)
+        s = np.clip((p - a0) @ d0 / (d0 @ d0), 0.0, 1.0)
+        return float(np.linalg.norm(p - a0 - s * d0))
+
+    samples = np.linspace(0.0, 1.0, 4001)
+    best = samples[int(np.argmin([along(t) for t in samples]))]
+    found = minimize_scalar(along, bounds=(max(0.0, best - 5e-4), min(1.0, best + 5e-4)),
+                            method="bounded", options={"xatol": 1e-14})
+    return min(found.fun, along(best))
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_nearly_parallel_capsules_have_their_exact_depth_in_both_detections(seed):
+    """The class of the two cases above: capsules (r 0.05-0.5, half length 0.1-1) at a
+    random pose, the second's axis the first's turned by 1e-9 to 1e-3 rad (within
+    PARALLEL_SIN: the two-point manifold) about a random direction, forward or reversed,
+    its centre shifted along the axis (overlapping) and sideways by up to r0 + r1 (the
+    axes crossing in a third of the draws). The numpy narrow phase and the compiled one
+    (kernels.collide) both report, as their deepest point, r0 + r1 less the least
+    distance of the axes to 1e-9 m (the truth's search is good to ~1e-12), and no point
+    deeper than that."""
+    from vrsim_cli.kernels import collide as kc
+    from vrsim_cli.maths.spatial import quat_multiply, quat_to_matrix
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import parse_scene
+    from vrsim_cli.stages.collision import stepped as stage
+    from vrsim_cli.stages.collision.detect import detect
+    from vrsim_cli.stages.dynamics import motion as dynamics
+
+    rng = np.random.default_rng(7000 + seed)
+    r = rng.uniform(0.05, 0.5, 2)
+    half = rng.uniform(0.1, 1.0, 2)
+    q0 = quat_normalize(rng.normal(size=4))
+    turn = quat_from_axis_angle(rng.normal(size=3), 10.0 ** rng.uniform(-9, -3)
+                                + (math.pi if rng.random() < 0.5 else 0.0))
+    q1 = quat_normalize(quat_multiply(turn, q0))
+    u0 = quat_to_matrix(q0)[:, 1]
+    side = rng.normal(size=3)
+    side -= (side @ u0) * u0
+    side /= np.linalg.norm(side)
+    lateral = 0.0 if seed % 3 == 0 else rng.uniform(0.0, 0.999) * (r[0] + r[1])
+    p0 = rng.uniform(-2.0, 2.0, 3)
+    p1 = p0 + rng.uniform(-0.9, 0.9) * min(half) * u0 + lateral * side
+    text = ("vrsim: 1\nduration: 0.01\nframe_rate: 100\ndt: 0.01\n"
+            "collision: {impacts: stepped}\nbodies:\n" + "".join(
+                f"  - {{name: c{i}, mass: 1, position: {list(map(float, p))!r}, "
+                f"orientation: {list(map(float, q))!r}, shape: {{type: capsule, "
+                f"radius: {float(r[i])!r}, length: {float(2 * half[i])!r}}}}}\n"
+                for i, (p, q) in enumerate(((p0, q0), (p1, q1)))))
+    model = compile_model(parse_scene(text))
+    state = make_state(model)
+    ends = []
+    for i in range(2):
+        u = quat_to_matrix(state.body_quat[i])[:, 1] * half[i]
+        ends += [state.body_pos[i] - u, state.body_pos[i] + u]
+    truth = r[0] + r[1] - _least_axis_distance(*ends)
+    ref = detect(model, state)
+    tb = stage.tables(model, dynamics)
+    S, RS = np.zeros_like(tb["S"]), np.zeros_like(tb["RS"])
+    stage._rows(model, state, S, RS)
+    k, C, _, _ = kc.detect(tb["gf"], S, 0, np.zeros(model.n_body),
+                           model.collision.tolerance, False)
+    for depth in (ref.depth, C[:k, kc.C_D]):
+        assert depth.max() == pytest.approx(truth, abs=1e-9)
+        assert (depth <= truth + 1e-9).all()
 
 
 def test_a_sphere_centred_on_a_cylinders_axis_is_inside_it():

@@ -709,10 +709,47 @@ def closest_segment_points(p1, q1, p2, q2):
     return s, t
 
 
+@kernel(inline="always")
+def _on_segment(p, a, b):
+    d = la.sub(b, a)
+    return la.add(a, la.scale(_clip(la.dot(la.sub(p, a), d) / max(la.dot(d, d), EPS), 0.0,
+                                    1.0), d))
+
+
+@kernel
+def _least_distance_nearly_parallel(a1, b1, a2, b2):
+    """narrowphase._least_distance_nearly_parallel: the lines' closest points from cross
+    products where both lie inside, else the nearest of the four ends to the other
+    segment (the same candidates in the same order)."""
+    d1, d2, r = la.sub(b1, a1), la.sub(b2, a2), la.sub(a2, a1)
+    n = la.cross(d1, d2)
+    nn = la.dot(n, n)
+    best_p, best_q = a1, _on_segment(a1, a2, b2)
+    best = la.norm(la.sub(best_q, best_p))
+    q = _on_segment(b1, a2, b2)
+    if la.norm(la.sub(q, b1)) < best:
+        best_p, best_q, best = b1, q, la.norm(la.sub(q, b1))
+    p = _on_segment(a2, a1, b1)
+    if la.norm(la.sub(a2, p)) < best:
+        best_p, best_q, best = p, a2, la.norm(la.sub(a2, p))
+    p = _on_segment(b2, a1, b1)
+    if la.norm(la.sub(b2, p)) < best:
+        best_p, best_q, best = p, b2, la.norm(la.sub(b2, p))
+    if nn > 0.0:
+        s = la.dot(la.cross(r, d2), n) / nn
+        t = la.dot(la.cross(r, d1), n) / nn
+        if 0.0 <= s <= 1.0 and 0.0 <= t <= 1.0:
+            p, q = la.add(a1, la.scale(s, d1)), la.add(a2, la.scale(t, d2))
+            if la.norm(la.sub(q, p)) < best:
+                best_p, best_q = p, q
+    return best_p, best_q
+
+
 @kernel
 def capsule_capsule(gf, W, ga, gb, margin, C, k):
     """Closest points of the two axes, then spheres; parallel axes that overlap along
-    their length get two contacts, at the two ends of the overlap."""
+    their length get two contacts, at the two ends of the overlap, and a third at the
+    least distance of the axes when that is deeper than both ends."""
     a1, b1 = _segment(gf, W, ga)
     a2, b2 = _segment(gf, W, gb)
     ra, rb = gf[ga, G_RADIUS], gf[gb, G_RADIUS]
@@ -723,7 +760,9 @@ def capsule_capsule(gf, W, ga, gb, margin, C, k):
     lo = max(min(s_a, s_b), 0.0)
     hi = min(max(s_a, s_b), length)
     count = 0
-    if parallel and hi - lo > 1e-9 * (1.0 + length):
+    two = parallel and hi - lo > 1e-9 * (1.0 + length)
+    ends_depth = -math.inf
+    if two:
         # the ends of the overlap along the bisector of the axes, and both axes' points
         # there: the same contacts whichever capsule comes first (narrowphase)
         w, _ = _unit(la.add(u, la.scale(1.0 if la.dot(u, u2) >= 0.0 else -1.0, u2)), UP)
@@ -736,9 +775,20 @@ def capsule_capsule(gf, W, ga, gb, margin, C, k):
             p2 = la.add(a2, la.scale(_clip((end - s2) / (e2 - s2), 0.0, 1.0),
                                      la.sub(b2, a2)))
             q, m, d = _spheres(p1, ra, p2, rb)
+            ends_depth = max(ends_depth, d)
             if d >= -margin:
                 _put(C, k + count, q, m, d)
                 count += 1
+    if two:
+        # the least distance joins the ends when deeper than both beyond round-off
+        # (16 eps X for points of magnitude X: narrowphase.capsule_capsule)
+        p1, p2 = _least_distance_nearly_parallel(a1, b1, a2, b2)
+        point, n, depth = _spheres(p1, ra, p2, rb)
+        scale = 1.0 + length + max(abs(a1[0]), abs(a1[1]), abs(a1[2]), abs(a2[0]),
+                                   abs(a2[1]), abs(a2[2]))
+        if depth > ends_depth + 1e-13 * scale and depth >= -margin:
+            _put(C, k + count, point, n, depth)
+            count += 1
         return count
     s, t = closest_segment_points(a1, b1, a2, b2)
     point, n, depth = _spheres(la.add(a1, la.scale(s, la.sub(b1, a1))), ra,

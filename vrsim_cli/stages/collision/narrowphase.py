@@ -302,10 +302,38 @@ def _closest_on_segment(p, a, b):
     return a + t[:, None] * ab
 
 
+def _least_distance_nearly_parallel(a1, b1, a2, b2):
+    """The closest points of segments a1b1 and a2b2 whose directions are nearly but not
+    exactly parallel: the lines' closest points where both lie inside the segments, else
+    the nearest of the four ends to the other segment. The lines' parameters come from
+    n = d1 x d2 (s = ((a2 - a1) x d2) . n / |n|^2), not from a e - b^2: that difference
+    cancels to eps / sin^2 relative, enough to put crossing axes 1e-8 m apart; the cross
+    products keep the distance to ~eps |a2 - a1|. Exactly parallel pairs (n = 0) keep
+    the ends' candidates only (the two-point manifold is exact for them)."""
+    d1, d2, r = b1 - a1, b2 - a2, a2 - a1
+    n = np.cross(d1, d2)
+    nn = _dot(n, n)
+    safe = np.where(nn > 0.0, nn, 1.0)
+    s = _dot(np.cross(r, d2), n) / safe
+    t = _dot(np.cross(r, d1), n) / safe
+    inside = (nn > 0.0) & (s >= 0.0) & (s <= 1.0) & (t >= 0.0) & (t <= 1.0)
+    candidates = [(a1, _closest_on_segment(a1, a2, b2)), (b1, _closest_on_segment(b1, a2, b2)),
+                  (_closest_on_segment(a2, a1, b1), a2), (_closest_on_segment(b2, a1, b1), b2),
+                  (a1 + s[:, None] * d1, a2 + t[:, None] * d2)]
+    dist = np.stack([np.linalg.norm(q - p, axis=1) for p, q in candidates], axis=1)
+    dist[:, 4] = np.where(inside, dist[:, 4], np.inf)
+    best = np.argmin(dist, axis=1)
+    pick = np.arange(len(a1))
+    p1 = np.stack([c[0] for c in candidates], axis=1)[pick, best]
+    p2 = np.stack([c[1] for c in candidates], axis=1)[pick, best]
+    return p1, p2
+
+
 def capsule_capsule(cm, world, ia, ib, margin):
     """Closest points of the two axes, then spheres. Parallel axes that overlap along
     their length (capsules lying side by side) get two contacts, at the two ends of the
-    overlap, so that a response can stop them rolling about the contact line."""
+    overlap, so that a response can stop them rolling about the contact line, and a
+    third at the least distance of the axes when that is deeper than both ends."""
     a1, b1 = _segment(world, ia)
     a2, b2 = _segment(world, ib)
     ra, rb = cm.geom_radius[ia], cm.geom_radius[ib]
@@ -325,6 +353,7 @@ def capsule_capsule(cm, world, ia, ib, margin):
         # both axes there: the same contacts whichever capsule comes first (measured
         # along axis 1 and projected onto axis 2, a capsule side by side with its mirror
         # image got one contact off the mirror plane)
+        ends_depth = []
         a1, b1, a2, b2 = a1[two], b1[two], a2[two], b2[two]
         u2 = _unit(b2 - a2)[0]
         w = _unit(u[two] + np.where(_dot(u[two], u2) >= 0.0, 1.0, -1.0)[:, None] * u2)[0]
@@ -339,6 +368,22 @@ def capsule_capsule(cm, world, ia, ib, margin):
             points.append(q)
             normals.append(m)
             depths.append(d)
+            ends_depth.append(d)
+        # Axes not exactly parallel have one least distance; where it lies between the
+        # ends (axes crossing, or the least distance at one capsule's end) it is deeper
+        # than both, and it joins them as a third contact: the manifold's deepest point
+        # is then the exact one. "Deeper" beyond round-off: the depths are r - |p1 - p2|
+        # of points of magnitude X, each to a few ulps of X, so two of them differ by
+        # round-off of at most ~16 eps X < 1e-13 (1 + X).
+        p1, p2 = _least_distance_nearly_parallel(a1, b1, a2, b2)
+        q, m, d = _spheres(p1, ra[two], p2, rb[two])
+        scale = 1.0 + np.maximum(np.abs(a1).max(axis=1), np.abs(a2).max(axis=1)) \
+            + length[two]
+        deeper = d > np.maximum(*ends_depth) + 1e-13 * scale
+        pairs.append(np.flatnonzero(two)[deeper])
+        points.append(q[deeper])
+        normals.append(m[deeper])
+        depths.append(d[deeper])
     pair = np.concatenate(pairs)
     order = np.argsort(pair, kind="stable")
     return _keep(pair[order], np.concatenate(points)[order], np.concatenate(normals)[order],
