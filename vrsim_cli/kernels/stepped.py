@@ -533,6 +533,20 @@ SLIP_TURN = 1e-10  # rad: a sliding point's slip direction is settled when it tu
 
 
 @kernel
+def _sub_pinv(W, rows, nr):
+    """(A, P): A = W's submatrix of rows[:nr] (rows and columns), shaped (1, nr, nr) for
+    `kernels.pinv`, and P its pseudo-inverse (singular values below 1e-10 of the
+    largest dropped: a face's corners make W singular)."""
+    A = np.empty((1, nr, nr))
+    for r in range(nr):
+        for t in range(nr):
+            A[0, r, t] = W[rows[r], rows[t]]
+    P = np.empty((1, nr, nr))
+    kp.pinv_symmetric(A, 1e-10, P)
+    return A, P
+
+
+@kernel
 def _direct_impact(K, c0, m, lam, vb, tl, U, Wv):
     """An impact of two or more points (lam[3q] >= 0) solved at once, when it can be: every
     normal to its target lam[3q + 1] and, where mu > 0, every point sticking, as one
@@ -593,12 +607,7 @@ def _direct_impact(K, c0, m, lam, vb, tl, U, Wv):
         for j in range(3 if mu[p] > 0.0 else 1):
             rows[nr] = 3 * p + j
             nr += 1
-    A = np.empty((1, nr, nr))
-    for r in range(nr):
-        for t in range(nr):
-            A[0, r, t] = Wf[rows[r], rows[t]]
-    P = np.empty((1, nr, nr))
-    kp.pinv_symmetric(A, 1e-10, P)
+    A, P = _sub_pinv(Wf, rows, nr)
     xs = np.zeros(nr)
     largest = 0.0
     for r in range(nr):
@@ -708,12 +717,7 @@ def _exact_normals(K, c0, m, lam, vb, tl, U, Wv):
                 if (bits >> r) & 1:
                     rows[nr] = r
                     nr += 1
-            A = np.empty((1, nr, nr))
-            for r in range(nr):
-                for t in range(nr):
-                    A[0, r, t] = Wn[rows[r], rows[t]]
-            P = np.empty((1, nr, nr))
-            kp.pinv_symmetric(A, 1e-10, P)
+            _, P = _sub_pinv(Wn, rows, nr)
             ok = True
             for r in range(n_pts):
                 x[r] = 0.0
