@@ -52,6 +52,7 @@ import numpy as np
 
 from vrsim_cli.kernels import free_flow
 from vrsim_cli.kernels import linalg as la
+from vrsim_cli.kernels import trig
 from vrsim_cli.kernels.jit import kernel
 
 EULER, SYMPLECTIC_EULER, RK4, VERLET, DOPRI5 = range(5)
@@ -756,7 +757,7 @@ def step_dopri5(mf, step, t, dt, S, RS, ext, S1, RS1, wb, wr, wm, kS, Ss, S0, RS
         if not math.isfinite(norm_):
             norm_ = math.inf
         factor = MAX_GROW if norm_ == 0.0 else \
-            min(MAX_GROW, max(MIN_SHRINK, SAFETY * norm_ ** (-1.0 / 5.0)))
+            min(MAX_GROW, max(MIN_SHRINK, SAFETY * trig.inv_fifth_root(norm_)))
         if norm_ <= 1.0:
             tt = t1 if last else tt + hh
             for i in range(n):

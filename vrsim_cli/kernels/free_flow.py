@@ -18,11 +18,13 @@ import math
 import numpy as np
 
 from vrsim_cli.kernels import linalg as la
+from vrsim_cli.kernels import trig
 from vrsim_cli.kernels.jit import kernel
 
 STRIP = 0.8 * (0.5 * math.pi)  # half-width (in u) where the psi integrand is analytic
 PANEL = 1.0  # longest quadrature panel in u
 QUAD_EXPONENT = 20.0  # rho^(-2n) < 1e-20: the quadrature error is far below round-off
+QUAD_TARGET = 1e20  # 10^QUAD_EXPONENT
 MAX_NODES = 64
 _TABLES: list = []  # gauss_tables(), built once per process on first use
 
@@ -62,7 +64,13 @@ def _build_tables():
 def nodes_for(half_length):
     ratio = STRIP / max(half_length, 1e-300)
     rho = ratio + math.sqrt(1.0 + ratio * ratio)
-    n = int(math.ceil(QUAD_EXPONENT * math.log(10.0) / (2.0 * math.log(rho))))
+    # the least n with rho^(2n) >= 10^QUAD_EXPONENT, by products (libm's log differs
+    # in the last bit between CPUs, which could move n at a boundary)
+    rho2 = rho * rho
+    n, power = 0, 1.0
+    while power < QUAD_TARGET and n < MAX_NODES:
+        power *= rho2
+        n += 1
     return min(max(2, n), MAX_NODES)
 
 
@@ -119,9 +127,9 @@ def jacobi(u, k2, kc2, scale, ratios, count):
     k^2 cn^2) adds two positive terms."""
     phi = scale * u
     for i in range(count - 1, -1, -1):
-        phi = 0.5 * (phi + math.asin(ratios[i] * math.sin(phi)))
-    cn = math.cos(phi)
-    return math.sin(phi), cn, math.sqrt(kc2 + k2 * cn * cn)
+        phi = 0.5 * (phi + trig.asin(ratios[i] * trig.sin_cos(phi)[0]))
+    sn, cn = trig.sin_cos(phi)  # not libm: the same bits on every CPU
+    return sn, cn, math.sqrt(kc2 + k2 * cn * cn)
 
 
 @kernel

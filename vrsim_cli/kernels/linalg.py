@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 from vrsim_cli.kernels.jit import kernel
+from vrsim_cli.kernels.trig import sin_cos
 
 
 @kernel
@@ -215,7 +216,7 @@ def inverse_transpose(m):
 @kernel
 def axis_rotation(axis, angle):
     """The rotation by `angle` rad about coordinate axis 0, 1 or 2."""
-    c, s = math.cos(angle), math.sin(angle)
+    s, c = sin_cos(angle)  # not libm: the same bits on every CPU (kernels/trig.py)
     if axis == 0:
         return (1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c)
     if axis == 1:
@@ -231,8 +232,9 @@ def exp_so3(w):
         a = 1.0 - theta * theta / 6.0
         b = 0.5 - theta * theta / 24.0
     else:
-        a = math.sin(theta) / theta
-        b = (1.0 - math.cos(theta)) / (theta * theta)
+        sin, cos = sin_cos(theta)
+        a = sin / theta
+        b = (1.0 - cos) / (theta * theta)
     x, y, z = w
     return (1.0 - b * (y * y + z * z), -a * z + b * x * y, a * y + b * x * z,
             a * z + b * x * y, 1.0 - b * (x * x + z * z), -a * x + b * y * z,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.maths import trig
 from vrsim_cli.maths.products import matmul
 
 
@@ -65,7 +66,8 @@ def axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
     """(k,) angles in rad -> (k, 3, 3) rotations about coordinate axis 0, 1 or 2."""
     # Few numpy calls (this runs 5 times per body batch per step): [cos, sin] times a
     # (2, 9) table of where they go, plus the fixed 1 on the axis.
-    cos_sin = np.cos(angle[..., None] - _PHASE)
+    s, c = trig.sin_cos(angle)  # not libm: the same bits on every CPU (maths/trig.py)
+    cos_sin = np.stack([c, s], axis=-1)
     return (_FIXED[axis] + matmul(cos_sin, _COS_SIN[axis])).reshape(angle.shape + (3, 3))
 
 
@@ -80,7 +82,6 @@ def _axis_tables():
 
 
 _FIXED, _COS_SIN = _axis_tables()
-_PHASE = np.array([0.0, 0.5 * np.pi])  # cos(a - pi/2) = sin(a)
 
 
 def exp_so3(w: np.ndarray) -> np.ndarray:
@@ -89,8 +90,9 @@ def exp_so3(w: np.ndarray) -> np.ndarray:
     small = theta < 1e-8
     safe = np.where(small, 1.0, theta)
     # Taylor series below 1e-8 rad: sin t / t = 1 - t^2/6, (1 - cos t) / t^2 = 1/2 - t^2/24.
-    a = np.where(small, 1.0 - theta ** 2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta ** 2 / 24.0, (1.0 - np.cos(safe)) / safe ** 2)
+    sin, cos = trig.sin_cos(safe)  # not libm: the same bits on every CPU
+    a = np.where(small, 1.0 - theta ** 2 / 6.0, sin / safe)
+    b = np.where(small, 0.5 - theta ** 2 / 24.0, (1.0 - cos) / safe ** 2)
     K = skew(w)
     return np.eye(3) + a[..., None, None] * K + b[..., None, None] * matmul(K, K)
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.maths import trig
 from vrsim_cli.maths.products import dot, matmul, norm
 
 IDENTITY_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
@@ -46,8 +47,8 @@ def quat_multiply(a, b) -> np.ndarray:
 def quat_from_axis_angle(axis, angle) -> np.ndarray:
     """Rotation by `angle` (rad) about `axis` (3,), which need not be unit length."""
     axis = unit(axis)
-    half = 0.5 * angle
-    return np.concatenate([[np.cos(half)], np.sin(half) * axis])
+    s, c = trig.sin_cos(0.5 * angle)  # not libm: the same bits on every CPU
+    return np.concatenate([[c], s * axis])
 
 
 def quat_from_euler_deg(euler_deg) -> np.ndarray:
@@ -155,7 +156,7 @@ def look_rotation(forward, up, fallback_quat=None) -> np.ndarray:
 def rotate_about_y(v, angle) -> np.ndarray:
     """R_y(angle) v for a 3-vector. In the slides' (z, x) notation:
     z' = z cos(a) - x sin(a), x' = x cos(a) + z sin(a) (right-handed, y up)."""
-    c, s = np.cos(angle), np.sin(angle)
+    s, c = trig.sin_cos(angle)
     x, y, z = v
     return np.array([x * c + z * s, y, z * c - x * s])
 
@@ -170,7 +171,7 @@ def quat_slerp(a, b, s: float) -> np.ndarray:
     if cos > 1.0 - 1e-12:
         return quat_normalize(a + s * (b - a))
     theta = np.arccos(min(cos, 1.0))
-    return (np.sin((1.0 - s) * theta) * a + np.sin(s * theta) * b) / np.sin(theta)
+    return (trig.sin((1.0 - s) * theta) * a + trig.sin(s * theta) * b) / trig.sin(theta)
 
 
 # Quaternion products as 4x4 matrices, for batches of small arrays where numpy's per-call

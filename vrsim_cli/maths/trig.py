@@ -6,11 +6,12 @@ glibc's libm (which numpy's float64 sin and cos call on this platform, and Pytho
 directions of the fountain's particles. These use only +, -, * and /, which IEEE 754
 rounds correctly everywhere (numpy does not contract them into FMAs):
 
-- reduction x = k pi/2 + r, |r| <= pi/4, by Cody & Waite with pi/2 in three parts of 33
-  bits (k pi/2_1 is exact for |k| < 2^20, so for |x| < ~1.6e6 rad; beyond, the result
-  loses accuracy gracefully but stays deterministic);
+- reduction x = k pi/2 + (r + tail), |r| <= pi/4, as fdlibm's __ieee754_rem_pio2 for
+  medium arguments: pi/2 in three parts of 33 bits and their tails, a further round while
+  the last cancelled (k pi/2_1 is exact for |k| < 2^20, so for |x| < ~1.6e6 rad; beyond,
+  the result loses accuracy but stays deterministic);
 - the minimax polynomials of fdlibm's __kernel_sin and __kernel_cos (Sun Microsystems,
-  1993) on [-pi/4, pi/4], error < 1 ulp of the result.
+  1993) on [-pi/4, pi/4] with the tail's correction, error < 1 ulp of the result.
 Accuracy: within 1 ulp of libm over the tested range (tests/test_trig.py).
 
 Every sine and cosine on the simulation path goes through here (the kinematic drive,
@@ -23,9 +24,14 @@ from __future__ import annotations
 import numpy as np
 
 _TWO_OVER_PI = 6.36619772367581382433e-01
-_PIO2_1 = 1.57079632673412561417e+00  # the first 33 bits of pi/2
-_PIO2_2 = 6.07710050630396597660e-11  # the next 33 bits
-_PIO2_3 = 2.02226624871116645580e-21  # the next 33 bits
+# pi/2 in parts of 33 bits (k * part is exact for |k| < 2^20), each with the tail of pi/2
+# beyond it: fdlibm's __ieee754_rem_pio2 (Sun Microsystems, 1993)
+_PIO2_1 = 1.57079632673412561417e+00  # 0x3FF921FB, 0x54400000
+_PIO2_1T = 6.07710050650619224932e-11  # pi/2 - _PIO2_1
+_PIO2_2 = 6.07710050630396597660e-11  # 0x3DD0B461, 0x1A600000
+_PIO2_2T = 2.02226624879595063154e-21  # pi/2 - _PIO2_1 - _PIO2_2
+_PIO2_3 = 2.02226624871116645580e-21  # 0x3BA3198A, 0x2E000000
+_PIO2_3T = 8.47842766036889956997e-32  # pi/2 - _PIO2_1 - _PIO2_2 - _PIO2_3
 _S = (-1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04,
       2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10)
 _C = (4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05,
@@ -33,23 +39,43 @@ _C = (4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.480158728947672
 
 
 def _reduce(x: np.ndarray):
+    """x = k pi/2 + (r + tail), |r| <= ~pi/4, as fdlibm: a round per part of pi/2 while
+    the last one cancelled more than its bits (16, then 49 binary orders), so r + tail
+    holds x's distance to k pi/2 to ~2^-150: results near a zero (cos(pi/2) ~ 6e-17)
+    keep their ulps."""
     k = np.rint(x * _TWO_OVER_PI)
-    r = ((x - k * _PIO2_1) - k * _PIO2_2) - k * _PIO2_3
-    return r, k.astype(np.int64) & 3
+    ex = np.frexp(x)[1]
+    r = x - k * _PIO2_1  # exact
+    w = k * _PIO2_1T
+    again = ex - np.frexp(r - w)[1] > 16
+    t = r
+    w2 = k * _PIO2_2
+    r2 = t - w2
+    w2 = k * _PIO2_2T - ((t - r2) - w2)
+    third = again & (ex - np.frexp(r2 - w2)[1] > 49)
+    t = r2
+    w3 = k * _PIO2_3
+    r3 = t - w3
+    w3 = k * _PIO2_3T - ((t - r3) - w3)
+    r = np.where(third, r3, np.where(again, r2, r))
+    w = np.where(third, w3, np.where(again, w2, w))
+    head = r - w
+    return head, (r - head) - w, k - 4.0 * np.floor(0.25 * k)  # k mod 4, exact for any k
 
 
-def _kernel_sin(r: np.ndarray) -> np.ndarray:
+def _kernel_sin(r: np.ndarray, y: np.ndarray) -> np.ndarray:
     z = r * r
     p = _S[1] + z * (_S[2] + z * (_S[3] + z * (_S[4] + z * _S[5])))
-    return r + (r * z) * (_S[0] + z * p)
+    v = z * r
+    return r - ((z * (0.5 * y - v * p) - y) - v * _S[0])
 
 
-def _kernel_cos(r: np.ndarray) -> np.ndarray:
+def _kernel_cos(r: np.ndarray, y: np.ndarray) -> np.ndarray:
     z = r * r
     p = z * (_C[0] + z * (_C[1] + z * (_C[2] + z * (_C[3] + z * (_C[4] + z * _C[5])))))
     hz = 0.5 * z
     w = 1.0 - hz
-    return w + (((1.0 - w) - hz) + z * p)
+    return w + (((1.0 - w) - hz) + (z * p - r * y))
 
 
 def sin_cos(x) -> tuple[np.ndarray, np.ndarray]:
@@ -58,8 +84,8 @@ def sin_cos(x) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(x, dtype=float)
     with np.errstate(invalid="ignore"):
         finite = np.isfinite(x)
-        r, quadrant = _reduce(np.where(finite, x, 0.0))
-    s, c = _kernel_sin(r), _kernel_cos(r)
+        r, tail, quadrant = _reduce(np.where(finite, x, 0.0))
+        s, c = _kernel_sin(r, tail), _kernel_cos(r, tail)
     sin = np.select([quadrant == 0, quadrant == 1, quadrant == 2], [s, c, -s], -c)
     cos = np.select([quadrant == 0, quadrant == 1, quadrant == 2], [c, -s, -c], s)
     sin = np.where(x == 0.0, x, sin)  # sin(-0) = -0

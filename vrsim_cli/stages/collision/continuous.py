@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vrsim_cli.maths import trig
 from vrsim_cli.maths.spatial import quat_conjugate, quat_multiply
 from vrsim_cli.model.collision import BOX, MESH, PLANE, SPHERE
 from vrsim_cli.stages.collision import mesh_pairs
@@ -46,8 +47,8 @@ def advance(pos, quat, vel, angvel, t):
     t = np.asarray(t, float)
     angle = np.linalg.norm(angvel, axis=1) * t
     axis = angvel / np.where(angle > 0.0, np.linalg.norm(angvel, axis=1), 1.0)[:, None]
-    dq = np.concatenate([np.cos(0.5 * angle)[:, None], np.sin(0.5 * angle)[:, None] * axis],
-                        axis=1)
+    sin, cos = trig.sin_cos(0.5 * angle)  # not libm: the same bits on every CPU
+    dq = np.concatenate([cos[:, None], sin[:, None] * axis], axis=1)
     q = quat_multiply(dq, quat)
     return pos + vel * t[:, None], q / np.linalg.norm(q, axis=1, keepdims=True)
 
