@@ -170,7 +170,7 @@ def quat_slerp(a, b, s: float) -> np.ndarray:
         b, cos = -b, -cos
     if cos > 1.0 - 1e-12:
         return quat_normalize(a + s * (b - a))
-    theta = np.arccos(min(cos, 1.0))
+    theta = trig.acos(min(cos, 1.0))
     return (trig.sin((1.0 - s) * theta) * a + trig.sin(s * theta) * b) / trig.sin(theta)
 
 

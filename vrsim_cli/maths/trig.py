@@ -112,3 +112,74 @@ def sin_over_x(x):
     zero = x == 0.0
     out = np.where(zero, 1.0, s / np.where(zero, 1.0, x))
     return float(out) if out.ndim == 0 else out
+
+
+# fdlibm's s_atan.c and e_atan2.c (Sun Microsystems, 1993): atan(0.5), atan(1),
+# atan(1.5) and pi/2 in a high and a low part, and the odd polynomial on |t| < 7/16
+_ATAN_HI = np.array([4.63647609000806093515e-01, 7.85398163397448278999e-01,
+                     9.82793723247329054082e-01, 1.57079632679489655800e+00])
+_ATAN_LO = np.array([2.26987774529616870924e-17, 3.06161699786838301793e-17,
+                     1.39033110312309984516e-17, 6.12323399573676603587e-17])
+_AT = (3.33333333333329318027e-01, -1.99999999998764832476e-01, 1.42857142725034663711e-01,
+       -1.11111104054623557880e-01, 9.09088713343650656196e-02, -7.69187620504482999495e-02,
+       6.66107313738753120669e-02, -5.83357013379057348645e-02, 4.97687799461593236017e-02,
+       -3.65315727442169155270e-02, 1.62858201153657823623e-02)
+_PI = 3.1415926535897931160e+00
+_PI_LO = 1.2246467991473531772e-16  # pi - _PI
+
+
+def _atan_abs(a: np.ndarray) -> np.ndarray:
+    """atan a for a >= 0 (finite or inf): fdlibm's reduction to |t| < 7/16 by the
+    arguments 0.5, 1, 1.5 and inf, then its polynomial."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ident = np.select([a < 0.4375, a < 0.6875, a < 1.1875, a < 2.4375], [-1, 0, 1, 2], 3)
+        t = np.select([ident == -1, ident == 0, ident == 1, ident == 2],
+                      [a, (2.0 * a - 1.0) / (2.0 + a), (a - 1.0) / (a + 1.0),
+                       (a - 1.5) / (1.0 + 1.5 * a)], -1.0 / a)
+        z = t * t
+        w = z * z
+        s1 = z * (_AT[0] + w * (_AT[2] + w * (_AT[4] + w * (_AT[6] + w * (_AT[8] + w * _AT[10])))))
+        s2 = w * (_AT[1] + w * (_AT[3] + w * (_AT[5] + w * (_AT[7] + w * _AT[9]))))
+        i = np.maximum(ident, 0)
+        reduced = _ATAN_HI[i] - ((t * (s1 + s2) - _ATAN_LO[i]) - t)
+        out = np.where(ident < 0, a - a * (s1 + s2), reduced)
+    out = np.where(a < 7.450580596923828e-09, a, out)  # 2^-27: atan a rounds to a
+    return np.where(a >= 7.378697629483821e+19, _ATAN_HI[3] + _ATAN_LO[3], out)  # 2^66
+
+
+def atan2(y, x):
+    """atan2(y, x) in rad, the same bits on every CPU: fdlibm's e_atan2.c for finite and
+    infinite arguments (zeros signed as libm's), NaN for NaN. Within 2 ulp of libm
+    (tests/test_trig.py). A float for floats."""
+    y_, x_ = np.broadcast_arrays(np.asarray(y, dtype=float), np.asarray(x, dtype=float))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
+        ratio = np.abs(y_ / x_)
+        z = _atan_abs(np.where(np.isnan(ratio), 0.0, ratio))
+        left = np.signbit(x_)
+        out = np.where(left, _PI - (z - _PI_LO), z)  # x < 0: pi - atan |y/x|
+        # exponents as fdlibm reads them: the biased field, 0 (frexp's -1021) for subnormals
+        ey, ex = np.maximum(np.frexp(y_)[1], -1021), np.maximum(np.frexp(x_)[1], -1021)
+        # fdlibm's shortcuts, which the division's over- and underflow would otherwise
+        # decide: |y/x| > 2^60 (or y infinite, or x zero) is pi/2 on either side; x < 0
+        # and |y/x| < 2^-60 is pi
+        out = np.where(left & (ey - ex < -60), _PI, out)
+        vertical = ((ey - ex > 60) | np.isinf(y_)) & np.isfinite(x_)
+        out = np.where(vertical, _ATAN_HI[3] + 0.5 * _PI_LO, out)
+        out = np.where(np.isinf(x_) & np.isfinite(y_), np.where(left, _PI, 0.0), out)
+        out = np.where(np.isinf(x_) & np.isinf(y_), np.where(left, 0.75 * _PI, 0.25 * _PI),
+                       out)
+        out = np.where(x_ == 0.0, _ATAN_HI[3] + _ATAN_LO[3], out)
+        out = np.where(y_ == 0.0, np.where(left, _PI, 0.0), out)  # atan2(+-0, -x) = +-pi
+        out = np.copysign(out, y_)
+        out = np.where(np.isnan(x_) | np.isnan(y_), np.nan, out)
+    return float(out) if out.ndim == 0 else out
+
+
+def acos(x):
+    """acos x in rad for x in [-1, 1] (NaN outside), the same bits on every CPU:
+    atan2(sqrt((1 - x)(1 + x)), x), within 2 ulp of libm (tests/test_trig.py)."""
+    x = np.asarray(x, dtype=float)
+    with np.errstate(invalid="ignore"):
+        out = atan2(np.sqrt((1.0 - x) * (1.0 + x)), x)
+    out = np.where(np.abs(x) <= 1.0, out, np.nan)
+    return float(out) if out.ndim == 0 else out

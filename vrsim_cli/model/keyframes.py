@@ -67,6 +67,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vrsim_cli.maths.products import matmul, dot
+from vrsim_cli.maths import trig
 from vrsim_cli.maths.trig import sin_cos, sin_over_x
 
 from vrsim_cli.maths.spatial import (quat_from_euler_deg, quat_left_matrix, quat_multiply,
@@ -434,7 +435,7 @@ def _quat_log(q):
     """(..., 4) unit quaternion -> (..., 3) rotation vector / 2 (angle in [0, 2 pi])."""
     v = q[..., 1:]
     sin_half = np.linalg.norm(v, axis=-1, keepdims=True)
-    half = np.arctan2(sin_half, q[..., :1])
+    half = trig.atan2(sin_half, q[..., :1])  # not libm: the same bits on every CPU
     scale = np.where(sin_half > 1e-300, half / np.where(sin_half > 1e-300, sin_half, 1.0),
                      1.0)
     return v * scale

@@ -28,7 +28,7 @@ import numpy as np
 
 from vrsim_cli.maths.products import dot, norm
 
-from vrsim_cli.maths import geometry
+from vrsim_cli.maths import geometry, trig
 from vrsim_cli.maths.spatial import (look_rotation, quat_conjugate, quat_from_axis_angle,
                                quat_multiply, quat_normalize, quat_rotate, quat_slerp,
                                quat_to_matrix, rotate_about_y)
@@ -98,7 +98,7 @@ def _walk_or_fly(model: Model, state: State, inputs: Inputs, dt: float):
 def _pitch(d, up, angle):
     """Rotate d about the view's right axis by `angle`, stopping short of the poles."""
     length = norm(d)
-    current = math.acos(max(-1.0, min(1.0, float(dot(d, up)) / length)))  # from up
+    current = trig.acos(max(-1.0, min(1.0, float(dot(d, up)) / length)))  # from up
     target = min(max(current - angle, MIN_PITCH), math.pi - MIN_PITCH)
     right = np.cross(d, up)
     if norm(right) == 0.0:
@@ -251,7 +251,7 @@ def angular_velocity(q0, q1, dt: float) -> np.ndarray:
     s = float(norm(rel[1:]))
     if s == 0.0:
         return np.zeros(3)
-    angle = 2.0 * math.atan2(s, rel[0])
+    angle = 2.0 * trig.atan2(s, rel[0])
     return rel[1:] / s * angle / dt
 
 

@@ -37,7 +37,7 @@ def motion(before, after, dt: float):
     dq = quat_multiply(after.body_quat, quat_conjugate(before.body_quat))
     dq = np.where(dq[:, :1] < 0.0, -dq, dq)
     s = np.linalg.norm(dq[:, 1:], axis=1)
-    angle = 2.0 * np.arctan2(s, dq[:, 0])
+    angle = 2.0 * trig.atan2(s, dq[:, 0])  # not libm: the same bits on every CPU
     axis = dq[:, 1:] / np.where(s > 0.0, s, 1.0)[:, None]
     return vel, axis * (angle / dt)[:, None]
 
