@@ -181,3 +181,31 @@ def test_acos_is_within_two_ulp_of_libm():
     assert ulps(acos(x), np.arccos(x)).max() <= 2
     assert acos(1.0) == 0.0 and acos(-1.0) == np.pi and acos(0.0) == np.pi / 2
     assert np.isnan(acos(1.0 + 2e-16)) and np.isnan(acos(np.nan))
+
+
+def test_no_libm_transcendental_on_the_simulation_path():
+    """A scan of the package's code (comments and docstrings aside, roughly: lines
+    whose code part calls them) for libm's transcendental functions through math or
+    numpy; allowed only in the renderer, the camera (pictures) and the tools (sweeps,
+    benchmarks). A new call elsewhere would make trajectories CPU-dependent again.
+    math.hypot is CPython's own code (Modules/mathmodule.c), not libm's: allowed."""
+    import re
+    from pathlib import Path
+
+    import vrsim_cli
+
+    root = Path(vrsim_cli.__file__).parent
+    call = re.compile(r"\b(?:math|np|numpy)\.(?:sin|cos|tan|arcsin|arccos|arctan|arctan2|"
+                      r"asin|acos|atan|atan2|exp|expm1|log|log1p|log2|log10|power|pow|"
+                      r"sinh|cosh|tanh|sinc)\(")
+    allowed = ("render/", "tools/", "maths/camera.py")
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(root).as_posix()
+        if rel.startswith(allowed):
+            continue
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            code = line.split("#", 1)[0]
+            if call.search(code) and not code.lstrip().startswith(("\"", "'", "-", "`")):
+                found.append(f"{rel}:{number}: {line.strip()}")
+    assert not found, "\n".join(found)

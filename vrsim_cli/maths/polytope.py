@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from vrsim_cli.maths import trig
+
 COPLANAR_COS = 1.0 - 1e-9  # normals this close (~4.5e-5 rad) are one facet's
 PLANE_TOL = 1e-9  # of the hull's size: vertices this close to a facet's plane are on it
 
@@ -82,7 +84,9 @@ def _ordered(v, idx, n):
     u = v[idx[0]] - centre
     u = u / math.sqrt(_dot(u, u))
     w = _cross(n, u)
-    angle = [math.atan2(_dot(v[i] - centre, w), _dot(v[i] - centre, u)) for i in idx]
+    # trig.atan2, not libm's: a tie within an ulp would order the vertices by CPU
+    angle = trig.atan2([_dot(v[i] - centre, w) for i in idx],
+                       [_dot(v[i] - centre, u) for i in idx])
     return idx[np.argsort(angle, kind="stable")]
 
 
