@@ -10,8 +10,10 @@ friction below) into the next step, the sweeps added to it (its normal impulse g
 0.0017 -> 0.016 N s, the friction below to its cone), and friction gave way.
 
 Truth: static equilibrium. Boxes in a block, on the ground or on an incline whose friction
-holds them (tan theta at most 0.8 mu), touching exactly, start at rest: every body must stay
-where it is. Random draws over block shape (1-3 x 1-3 x 2-3 boxes), box size, mass,
+holds them (tan theta at most 0.8 mu) and within whose base the weight's line falls (tan
+theta at most 0.8 of half the base over the height of the centre of mass; seeds 9 and 14
+broke that until 2026-12-07: see the blocks that must tip, below), touching exactly, start
+at rest: every body must stay where it is. Random draws over block shape (1-3 x 1-3 x 2-3 boxes), box size, mass,
 friction, dt, integrator and incline angle; 1 s each (the kick came after 0.77 s).
 
 Blocks on an incline (seeds from INCLINED on): all 12 draws are held to 3e-15 m (draw
@@ -60,9 +62,17 @@ def draw(seed: int):
         nz = 2  # side by side somewhere: a plain column is statically determinate
     size = float(rng.uniform(0.1, 0.5))
     mu = float(rng.uniform(0.3, 1.0))
-    theta = 0.0 if seed < INCLINED else float(rng.uniform(0.2, 0.8)) * math.atan(mu)
+    share = None if seed < INCLINED else float(rng.uniform(0.2, 0.8))
     dt = (1 / 60, 1 / 100, 1 / 240)[seed % 3]
     integrator = ("symplectic-euler", "verlet", "rk4")[(seed // 3) % 3]
+    mass = np.array([float(rng.uniform(0.5, 5.0)) for _ in range(nx * ny * nz)])
+    # held: friction (tan theta <= mu) and the block's weight within its base (tan theta
+    # <= nx size / 2 / h: the resultant's line through the centre of mass, h above the
+    # slope, must fall within the base's half-width of its centre)
+    layers = mass.reshape(nx, ny, nz).sum(axis=(0, 2))
+    height = float(layers @ ((np.arange(ny) + 0.5) * size) / layers.sum())
+    theta = 0.0 if share is None else share * min(math.atan(mu),
+                                                  math.atan(nx * size / 2 / height))
     c, s = math.cos(theta), math.sin(theta)
     along, normal = np.array([c, s, 0.0]), np.array([-s, c, 0.0])
     bodies = []
@@ -71,9 +81,8 @@ def draw(seed: int):
             for k in range(nz):
                 centre = (i - (nx - 1) / 2) * size * along + (j + 0.5) * size * normal + \
                     np.array([0.0, 0.0, (k - (nz - 1) / 2) * size])
-                mass = float(rng.uniform(0.5, 5.0))
                 bodies.append(
-                    f"  - {{name: b{i}_{j}_{k}, mass: {mass!r}, position: "
+                    f"  - {{name: b{i}_{j}_{k}, mass: {float(mass[(i * ny + j) * nz + k])!r}, position: "
                     f"[{float(centre[0])!r}, {float(centre[1])!r}, {float(centre[2])!r}], euler_deg: "
                     f"[0, 0, {math.degrees(theta)!r}], shape: {{type: box, size: "
                     f"[{size!r}, {size!r}, {size!r}]}}, material: {{friction: {mu!r}}}}}")
@@ -99,3 +108,78 @@ def test_a_block_of_boxes_at_rest_stays_at_rest(seed):
     assert np.abs(final.body_angvel[1:]).max() <= SPEED_TOL, case
     assert np.abs(final.body_pos - model.body_pos0).max() <= MOVE_TOL, case
 
+
+
+# ------------------------------------------------------------------ blocks that must tip
+# Until 2026-12-07 two of the draws above (seeds 9 and 14: 1 x 3 x 2 blocks on 25.3 and
+# 24.6 degrees, tan theta 0.47 and 0.46 > 0.38 and 0.33, half the base over the height of
+# the centre of mass) asked a block to stay whose weight's line falls outside its base: no static equilibrium exists (about the block's
+# downhill edge, the weight's moment and every compressive ground force's turn the same
+# way, whatever the forces between the boxes), so "at rest" was no truth there. The
+# located solver held them all the same (to 1e-14 rad/s); the stepped step let them tip.
+# The class of those draws, with its own truth:
+
+TIP_DRAWS = 6
+
+
+def tip_draw(seed: int):
+    """A column of ny = 2 or 3 cubes of one mass (one wide along the slope; its centre of
+    mass ny size / 2 above the slope), nz = 1 or 2 columns side by side across it, on an
+    incline with 1.15 / ny <= tan theta <= 0.8 mu (friction holds against sliding, the
+    weight falls outside the base), every dt and integrator."""
+    rng = np.random.default_rng(500 + seed)
+    ny, nz = int(rng.integers(2, 4)), 1 + seed % 2
+    size = float(rng.uniform(0.1, 0.5))
+    mass = float(rng.uniform(0.5, 5.0))
+    mu = float(rng.uniform(0.9, 1.2))
+    tan = float(rng.uniform(1.15 / ny, min(0.8 * mu, 1.5 / ny)))
+    theta = math.atan(tan)
+    dt = (1 / 60, 1 / 100, 1 / 240)[seed % 3]
+    integrator = ("symplectic-euler", "verlet", "rk4")[(seed // 2) % 3]
+    c, s = math.cos(theta), math.sin(theta)
+    normal = np.array([-s, c, 0.0])
+    bodies = []
+    for j in range(ny):
+        for k in range(nz):
+            centre = (j + 0.5) * size * normal + np.array([0.0, 0.0, (k - (nz - 1) / 2) * size])
+            bodies.append(
+                f"  - {{name: b{j}_{k}, mass: {mass!r}, position: "
+                f"{centre.tolist()!r}, euler_deg: [0, 0, {math.degrees(theta)!r}], shape: "
+                f"{{type: box, size: [{size!r}, {size!r}, {size!r}]}}, material: "
+                f"{{friction: {mu!r}}}}}")
+    return ny, nz, size, mu, theta, dt, integrator, bodies
+
+
+@pytest.mark.parametrize("mode", ["located", "stepped"])
+@pytest.mark.parametrize("seed", range(TIP_DRAWS))
+def test_a_block_whose_weight_falls_outside_its_base_tips_over(seed, mode, request):
+    """Truth: statics (above) says the block cannot stay; dynamics bounds how fast it
+    must go. Tipping about the downhill edge as one body, the weight's moment is
+    M g a cos(theta) (ny tan(theta) - 1) / 2 >= 0.075 M g a cos(theta) and the moment of
+    inertia about the edge at most M (ny a)^2 (1/3 + 1/12) for ny <= 3, so the angular
+    acceleration starts at >= 0.075 g cos(theta) / (3.75 a) >= 0.12 rad/s^2 (a <= 0.5 m,
+    theta <= 56 deg) and grows as the block leans; the boxes above may also slide or
+    turn on their own, which moves them faster. After 0.6 s some box turns at more than
+    0.02 rad/s (a third of the bound's 0.072) where a held block moves by round-off
+    (1e-14 rad/s)."""
+    ny, nz, size, mu, theta, dt, integrator, bodies = tip_draw(seed)
+    if mode == "located" and nz == 2:
+        request.applymarker(pytest.mark.xfail(
+            strict=True, reason="located mode holds two columns side by side at rest "
+            "(1e-14 rad/s) where statics forbids it: docs/collision-response.md, Known "
+            "limits"))
+    c, s = math.cos(theta), math.sin(theta)
+    text = f"""
+vrsim: 1
+duration: 0.6
+frame_rate: 10
+dt: {dt!r}
+integrator: {integrator}
+collision: {{impacts: {mode}}}
+bodies:
+  - {{name: ground, type: static, shape: {{type: plane, normal: [{-s!r}, {c!r}, 0]}},
+     material: {{friction: {mu!r}}}}}
+""" + "\n".join(bodies) + "\n"
+    _, _, final = simulate(text)
+    case = (ny, nz, size, mu, math.degrees(theta), dt, integrator)
+    assert np.abs(final.body_angvel[1:]).max() > 0.02, case
