@@ -391,3 +391,20 @@ bodies:
   - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
      material: {{restitution: {eps}, friction: {mu}}}}}
 """
+
+
+def compiled_detect(model, state):
+    """(k, C, nf) of the stepped step's compiled detection (kernels.collide.detect) of
+    `state`: k contacts in the rows C[:k] (columns kernels.collide.C_*), nf non-finite."""
+    import numpy as np
+
+    from vrsim_cli.kernels import collide as kc
+    from vrsim_cli.stages.collision import stepped as stage
+    from vrsim_cli.stages.dynamics import motion as dynamics
+
+    tb = stage.tables(model, dynamics)
+    S, RS = np.zeros_like(tb["S"]), np.zeros_like(tb["RS"])
+    stage._rows(model, state, S, RS)
+    k, C, _, nf = kc.detect(tb["gf"], S, 0, np.zeros(model.n_body), model.collision.tolerance,
+                            False)
+    return k, C, nf

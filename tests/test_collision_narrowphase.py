@@ -10,6 +10,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from conftest import compiled_detect
 from vrsim_cli.maths.spatial import quat_from_axis_angle, quat_from_euler_deg, quat_normalize
 from vrsim_cli.model.collision import analytic_geom, table
 from vrsim_cli.stages.collision import fcl_adapter
@@ -507,9 +508,7 @@ def test_nearly_parallel_capsules_have_their_exact_depth_in_both_detections(seed
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.model.state import make_state
     from vrsim_cli.scene.spec import parse_scene
-    from vrsim_cli.stages.collision import stepped as stage
     from vrsim_cli.stages.collision.detect import detect
-    from vrsim_cli.stages.dynamics import motion as dynamics
 
     rng = np.random.default_rng(7000 + seed)
     r = rng.uniform(0.05, 0.5, 2)
@@ -539,11 +538,7 @@ def test_nearly_parallel_capsules_have_their_exact_depth_in_both_detections(seed
         ends += [state.body_pos[i] - u, state.body_pos[i] + u]
     truth = r[0] + r[1] - _least_axis_distance(*ends)
     ref = detect(model, state)
-    tb = stage.tables(model, dynamics)
-    S, RS = np.zeros_like(tb["S"]), np.zeros_like(tb["RS"])
-    stage._rows(model, state, S, RS)
-    k, C, _, _ = kc.detect(tb["gf"], S, 0, np.zeros(model.n_body),
-                           model.collision.tolerance, False)
+    k, C, _ = compiled_detect(model, state)
     for depth in (ref.depth, C[:k, kc.C_D]):
         assert depth.max() == pytest.approx(truth, abs=1e-9)
         assert (depth <= truth + 1e-9).all()

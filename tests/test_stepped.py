@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import simulate
+from conftest import compiled_detect, simulate
 from vrsim_cli.errors import SimulationError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -374,9 +374,7 @@ def test_compiled_detection_matches_the_numpy_narrow_phase(seed):
     from vrsim_cli.model.model import compile_model
     from vrsim_cli.model.state import make_state
     from vrsim_cli.scene.spec import parse_scene
-    from vrsim_cli.stages.collision import stepped as stage
     from vrsim_cli.stages.collision.detect import detect
-    from vrsim_cli.stages.dynamics import motion as dynamics
 
     rng = np.random.default_rng(100 + seed)
     lines = ["vrsim: 1\nduration: 0.01\nframe_rate: 100\ndt: 0.01\n"
@@ -391,11 +389,7 @@ def test_compiled_detection_matches_the_numpy_narrow_phase(seed):
     model = compile_model(parse_scene("\n".join(lines) + "\n"))
     state = make_state(model)
     ref = detect(model, state)
-    tb = stage.tables(model, dynamics)
-    S, RS = np.zeros_like(tb["S"]), np.zeros_like(tb["RS"])
-    stage._rows(model, state, S, RS)
-    k, C, _, nf = kc.detect(tb["gf"], S, 0, np.zeros(model.n_body),
-                            model.collision.tolerance, False)
+    k, C, nf = compiled_detect(model, state)
     assert nf == 0
     assert len(ref) > 40  # a pile: many touching pairs
 
