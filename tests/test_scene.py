@@ -110,6 +110,23 @@ def test_minimum(write_scene):
     assert out == ["F:3:26: bodies[0].mass: must be > 0, got -2"]
 
 
+@pytest.mark.parametrize("size, want", [
+    ("[-1, 1, 1]", "F:4:55: bodies[0].shape.size[0]: must be > 0, got -1"),
+    ("[1, 0, 1]", "F:4:58: bodies[0].shape.size[1]: must be > 0, got 0"),
+    ("[1, 1, -0.5]", "F:4:61: bodies[0].shape.size[2]: must be > 0, got -0.5")])
+def test_a_box_needs_positive_sides(write_scene, size, want):
+    """A box side of 0 or less gave a contact tolerance below zero and a traceback
+    (math domain error) in compile_response; hypothesis's mutated stack scene found it in
+    CI (2026-12-07). The schema now asks every side to be > 0, as radii and lengths."""
+    out = problems(write_scene, f"""
+        vrsim: 1
+        duration: 1
+        collision: {{}}
+        bodies: [{{name: b, mass: 1, shape: {{type: box, size: {size}}}}}]
+        """)
+    assert out == [want]
+
+
 def test_item_count(write_scene):
     out = problems(write_scene, """
         vrsim: 1
