@@ -720,7 +720,7 @@ def _on_segment(p, a, b):
 def _least_distance_nearly_parallel(a1, b1, a2, b2):
     """narrowphase._least_distance_nearly_parallel: the lines' closest points from cross
     products where both lie inside, else the nearest of the four ends to the other
-    segment (the same candidates in the same order)."""
+    segment (the same candidates in the same order); and whether the lines' points won."""
     d1, d2, r = la.sub(b1, a1), la.sub(b2, a2), la.sub(a2, a1)
     n = la.cross(d1, d2)
     nn = la.dot(n, n)
@@ -735,21 +735,23 @@ def _least_distance_nearly_parallel(a1, b1, a2, b2):
     p = _on_segment(b2, a1, b1)
     if la.norm(la.sub(b2, p)) < best:
         best_p, best_q, best = p, b2, la.norm(la.sub(b2, p))
+    inside = False
     if nn > 0.0:
         s = la.dot(la.cross(r, d2), n) / nn
         t = la.dot(la.cross(r, d1), n) / nn
         if 0.0 <= s <= 1.0 and 0.0 <= t <= 1.0:
             p, q = la.add(a1, la.scale(s, d1)), la.add(a2, la.scale(t, d2))
             if la.norm(la.sub(q, p)) < best:
-                best_p, best_q = p, q
-    return best_p, best_q
+                best_p, best_q, inside = p, q, True
+    return best_p, best_q, inside
 
 
 @kernel
 def capsule_capsule(gf, W, ga, gb, margin, C, k):
     """Closest points of the two axes, then spheres; parallel axes that overlap along
-    their length get two contacts, at the two ends of the overlap, and a third at the
-    least distance of the axes when that is deeper than both ends."""
+    their length get two contacts, at the two ends of the overlap; the axes' least
+    distance, where deeper than both ends, replaces the nearer end (at a capsule's end)
+    or joins them (axes crossing between the ends)."""
     a1, b1 = _segment(gf, W, ga)
     a2, b2 = _segment(gf, W, gb)
     ra, rb = gf[ga, G_RADIUS], gf[gb, G_RADIUS]
@@ -762,6 +764,8 @@ def capsule_capsule(gf, W, ga, gb, margin, C, k):
     count = 0
     two = parallel and hi - lo > 1e-9 * (1.0 + length)
     ends_depth = -math.inf
+    end_q = (la.sub(a1, a1), la.sub(a1, a1))  # the two ends' contact points, and where
+    end_at = (-1, -1)  # they went in C (-1: beyond the margin)
     if two:
         # the ends of the overlap along the bisector of the axes, and both axes' points
         # there: the same contacts whichever capsule comes first (narrowphase)
@@ -769,26 +773,39 @@ def capsule_capsule(gf, W, ga, gb, margin, C, k):
         s1, e1, s2, e2 = la.dot(a1, w), la.dot(b1, w), la.dot(a2, w), la.dot(b2, w)
         lo = max(min(s1, e1), min(s2, e2))
         hi = min(max(s1, e1), max(s2, e2))
-        for end in (lo, hi):
+        for e in range(2):
+            end = lo if e == 0 else hi
             p1 = la.add(a1, la.scale(_clip((end - s1) / (e1 - s1), 0.0, 1.0),
                                      la.sub(b1, a1)))
             p2 = la.add(a2, la.scale(_clip((end - s2) / (e2 - s2), 0.0, 1.0),
                                      la.sub(b2, a2)))
             q, m, d = _spheres(p1, ra, p2, rb)
             ends_depth = max(ends_depth, d)
+            end_q = (q, end_q[1]) if e == 0 else (end_q[0], q)
             if d >= -margin:
                 _put(C, k + count, q, m, d)
+                end_at = (count, end_at[1]) if e == 0 else (end_at[0], count)
                 count += 1
     if two:
-        # the least distance joins the ends when deeper than both beyond round-off
-        # (16 eps X for points of magnitude X: narrowphase.capsule_capsule)
-        p1, p2 = _least_distance_nearly_parallel(a1, b1, a2, b2)
+        # the least distance, where deeper than both ends beyond round-off (16 eps X for
+        # points of magnitude X), replaces the nearer end (at a capsule's end) or joins
+        # them (axes crossing between the ends): narrowphase.capsule_capsule
+        p1, p2, inside = _least_distance_nearly_parallel(a1, b1, a2, b2)
         point, n, depth = _spheres(p1, ra, p2, rb)
         scale = 1.0 + length + max(abs(a1[0]), abs(a1[1]), abs(a1[2]), abs(a2[0]),
                                    abs(a2[1]), abs(a2[2]))
         if depth > ends_depth + 1e-13 * scale and depth >= -margin:
-            _put(C, k + count, point, n, depth)
-            count += 1
+            if inside:
+                _put(C, k + count, point, n, depth)
+                count += 1
+            else:
+                hi_nearer = la.norm(la.sub(point, end_q[1])) < la.norm(la.sub(point,
+                                                                              end_q[0]))
+                at = end_at[1] if hi_nearer else end_at[0]
+                if at < 0:  # that end was beyond the margin: this one is not
+                    at = count
+                    count += 1
+                _put(C, k + at, point, n, depth)
         return count
     s, t = closest_segment_points(a1, b1, a2, b2)
     point, n, depth = _spheres(la.add(a1, la.scale(s, la.sub(b1, a1))), ra,

@@ -309,7 +309,9 @@ def _least_distance_nearly_parallel(a1, b1, a2, b2):
     n = d1 x d2 (s = ((a2 - a1) x d2) . n / |n|^2), not from a e - b^2: that difference
     cancels to eps / sin^2 relative, enough to put crossing axes 1e-8 m apart; the cross
     products keep the distance to ~eps |a2 - a1|. Exactly parallel pairs (n = 0) keep
-    the ends' candidates only (the two-point manifold is exact for them)."""
+    the ends' candidates only (the two-point manifold is exact for them). Returns (p1,
+    p2, inside): inside where the lines' closest points won (the axes cross between
+    their ends), else the least distance is at a segment's end."""
     d1, d2, r = b1 - a1, b2 - a2, a2 - a1
     n = np.cross(d1, d2)
     nn = _dot(n, n)
@@ -326,14 +328,15 @@ def _least_distance_nearly_parallel(a1, b1, a2, b2):
     pick = np.arange(len(a1))
     p1 = np.stack([c[0] for c in candidates], axis=1)[pick, best]
     p2 = np.stack([c[1] for c in candidates], axis=1)[pick, best]
-    return p1, p2
+    return p1, p2, best == 4
 
 
 def capsule_capsule(cm, world, ia, ib, margin):
     """Closest points of the two axes, then spheres. Parallel axes that overlap along
     their length (capsules lying side by side) get two contacts, at the two ends of the
-    overlap, so that a response can stop them rolling about the contact line, and a
-    third at the least distance of the axes when that is deeper than both ends."""
+    overlap, so that a response can stop them rolling about the contact line; where
+    the axes' least distance is deeper than both ends, it replaces the nearer end (at a
+    capsule's end) or joins them (axes crossing between the ends)."""
     a1, b1 = _segment(world, ia)
     a2, b2 = _segment(world, ib)
     ra, rb = cm.geom_radius[ia], cm.geom_radius[ib]
@@ -369,21 +372,31 @@ def capsule_capsule(cm, world, ia, ib, margin):
             normals.append(m)
             depths.append(d)
             ends_depth.append(d)
-        # Axes not exactly parallel have one least distance; where it lies between the
-        # ends (axes crossing, or the least distance at one capsule's end) it is deeper
-        # than both, and it joins them as a third contact: the manifold's deepest point
-        # is then the exact one. "Deeper" beyond round-off: the depths are r - |p1 - p2|
-        # of points of magnitude X, each to a few ulps of X, so two of them differ by
-        # round-off of at most ~16 eps X < 1e-13 (1 + X).
-        p1, p2 = _least_distance_nearly_parallel(a1, b1, a2, b2)
+        # Axes not exactly parallel have one least distance. Where it is deeper than both
+        # ends (beyond round-off: the depths are r - |p1 - p2| of points of magnitude X,
+        # each to a few ulps of X, so two differ by at most ~16 eps X < 1e-13 (1 + X)), it
+        # is the manifold's deepest point: at a capsule's end it replaces the overlap's end
+        # nearer to it (the two lie within ~theta L of each other: kept both, they were
+        # two nearly equal rows with normals theta/2 apart, and an elastic impact gained
+        # up to 3e-7 of its energy), and where the axes cross between the ends it joins
+        # them as a third contact.
+        p1, p2, inside = _least_distance_nearly_parallel(a1, b1, a2, b2)
         q, m, d = _spheres(p1, ra[two], p2, rb[two])
         scale = 1.0 + np.maximum(np.abs(a1).max(axis=1), np.abs(a2).max(axis=1)) \
             + length[two]
         deeper = d > np.maximum(*ends_depth) + 1e-13 * scale
-        pairs.append(np.flatnonzero(two)[deeper])
-        points.append(q[deeper])
-        normals.append(m[deeper])
-        depths.append(d[deeper])
+        nearer_hi = np.linalg.norm(q - points[-1], axis=1) < np.linalg.norm(q - points[-2],
+                                                                            axis=1)
+        for k, side in ((-2, ~nearer_hi), (-1, nearer_hi)):
+            swap = deeper & ~inside & side
+            points[k] = np.where(swap[:, None], q, points[k])
+            normals[k] = np.where(swap[:, None], m, normals[k])
+            depths[k] = np.where(swap, d, depths[k])
+        third = deeper & inside
+        pairs.append(np.flatnonzero(two)[third])
+        points.append(q[third])
+        normals.append(m[third])
+        depths.append(d[third])
     pair = np.concatenate(pairs)
     order = np.argsort(pair, kind="stable")
     return _keep(pair[order], np.concatenate(points)[order], np.concatenate(normals)[order],
