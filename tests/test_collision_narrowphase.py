@@ -355,15 +355,10 @@ def test_closed_forms_agree_with_fcl(kind_a, kind_b, data):
             return
         if pair == ("capsule", "capsule"):
             # fcl's GJK ends 8e-9 m off for capsules parallel to 4e-9 rad, 1 m apart
-            # (seen: 0.2500000042 for 0.2499999958): the exact gap of the axes instead.
-            # Axes within PARALLEL_SIN of parallel (not exactly) that overlap get the
-            # two-point manifold, whose gap is only that of its ends (measured across
-            # the bisector): the strict xfail below, Known limits in
-            # docs/collision-response.md; here it must at least never be deeper
+            # (seen: 0.2500000042 for 0.2499999958): the exact gap of the axes instead
+            # (nearly parallel overlapping axes included: their least distance is in
+            # the manifold since 2026-12-07)
             truth = _capsule_capsule_gap(cm, world)
-            if _nearly_parallel_overlap(world):
-                assert -ours >= truth - 1e-9
-                return
             assert -ours == pytest.approx(truth, abs=1e-9)
             return
         gap = fcl_adapter.pair_distance(cm, world, 0, 1)
