@@ -192,11 +192,12 @@ class _Relay:
                   f"subprotocol {SUBPROTOCOL} or {OLD_SUBPROTOCOL} (this client offered: "
                   f"{shown})")
         body = reason.encode("utf-8", "replace")
+        if self.on_refused is not None:  # said before the reply: once the client has its
+            # answer, the run may already be closing (a test read the log too early)
+            self.on_refused(f"turned away a client: {reason}")
         client.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Type: text/plain; charset=utf-8"
                        b"\r\nContent-Length: " + str(len(body)).encode() +
                        b"\r\nConnection: close\r\n\r\n" + body)
-        if self.on_refused is not None:
-            self.on_refused(f"turned away a client: {reason}")
 
     def _track(self, sock: socket.socket) -> None:
         with self.lock:
