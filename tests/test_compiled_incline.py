@@ -23,8 +23,9 @@ The slope's normal is turned by a random yaw about the vertical too, so no case 
 with an axis. Tolerances: 1e-9 m or relative and 1e-9 rad, issue 48's bounds (measured:
 <= 1e-12). Before the islands were solved to convergence (8 sweeps; d504251), 31 of
 these 120 cases failed (the first steps up to 2e-2 off Coulomb's law); the exact a t^2 / 2 needs
-the mean-velocity position rule kept on branch wip/moreau-jean (tests/test_stepped_pivot.py
-says why it is not on main).
+the mean-velocity position rule kept on branches wip/moreau-jean and wip/theta-half
+(there all 120 pass against a t^2 / 2; tests/test_stepped_pivot.py and
+docs/collision-response.md say why it is not on main).
 """
 
 from __future__ import annotations
