@@ -5,13 +5,16 @@ equilibrium with friction): each body's velocity and spin are then zero. Nothing
 resting pile drives motion; a solver that lets a still body report a velocity, or keeps
 one rocking, is wrong however small the pile looks. The theta = 1/2 branch
 (`wip/theta-half`, docs/collision-response.md) made still boxes report an alternating
-4 mm/s for ever and kept a box of 4 rocking at ~1 cm/s for 11 s: this class catches both.
+4 mm/s for ever and kept a box of 4 rocking at ~1 cm/s for 11 s: this class catches both
+(the rocking was a box lying across another's face with one contact point, at one rim).
 
 The class: 24 random piles of 3-6 boxes (random sizes 5-15 cm, masses 0.2-2 kg, random
 orientations, dropped 1 cm apart onto each other), friction 0.3-1.0, the integrators
 that move positions differently in contact (symplectic-euler, verlet, rk4) at dt 1/60,
 1/120 and 1/240 s; and a pile of 20 boxes (the issue's pile) with each of the three.
-All in the compiled step (`impacts: stepped`), the step issue 48 makes the default.
+All in the compiled step (`impacts: stepped`), the step issue 48 makes the default (the
+default `auto` still sends piles of <= 32 bodies to the interpreted located solver, ~20
+times slower here).
 
 Tolerance: the fastest point of any body, |v| + |w| r (r the body's half diagonal),
 at most 1e-9 m/s over the last 0.5 s of 6 s (8 s for 20 boxes). Velocities of a body at
@@ -70,18 +73,11 @@ def test_a_pile_of_boxes_comes_to_rest(seed):
     assert fastest <= SPEED, (seed, n, integrator, dt, fastest)
 
 
-# Known open (issue 48 (d)), measured on main with `impacts: stepped` (the default
-# `auto` sends piles of <= 32 bodies to the interpreted located solver, 20x slower; it
-# leaves this pile moving with verlet and seed 10 of the class above): with verlet the
-# pile is still at 16 s, 1e-16 m/s, and wakes up by itself at 26-28 s (2e-5 m/s: the
-# rest state is unstable, round-off grows); with rk4 its boxes jitter at ~1e-2 m/s up to
-# 8 s and are still from 12 s. Symplectic Euler settles it by 8 s.
-@pytest.mark.parametrize("integrator", [
-    pytest.param("verlet", marks=pytest.mark.xfail(
-        strict=True, reason="issue 48 (d): a still verlet pile wakes up (2e-5 m/s)")),
-    pytest.param("rk4", marks=pytest.mark.xfail(
-        strict=True, reason="issue 48 (d): an rk4 pile jitters at 1e-2 m/s until ~12 s")),
-    "symplectic-euler"])
+# With verlet this pile was still at 16 s and woke up by itself at 26-28 s (2e-5 m/s);
+# with rk4 its boxes jittered at ~1e-2 m/s up to 8 s: a box lying across another's face
+# had one contact point at one rim (collide.box_box; now test_collision_narrowphase's
+# bar lying across a box face).
+@pytest.mark.parametrize("integrator", ["verlet", "rk4", "symplectic-euler"])
 def test_a_pile_of_20_boxes_comes_to_rest(integrator):
     fastest = _pile(100, 20, integrator, 1 / 120, 8.0)
     assert fastest <= SPEED, (integrator, fastest)

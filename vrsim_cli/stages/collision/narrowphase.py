@@ -536,8 +536,9 @@ def box_box(cm, world, ia, ib, margin):
     """Separating-axis test over the 15 axes (3 + 3 face normals, 9 edge crosses), then a
     contact manifold: face contact -> the overlap of the reference face and the incident
     face (up to 4 points, each with its own depth); edge contact -> the closest points of
-    the two edges (1 point). Face axes win unless an edge axis is clearly shallower (5 %),
-    as in Box2D and ODE, so resting boxes keep a stable face manifold."""
+    the two edges (1 point), with the shallowest face's manifold points within the margin
+    too. Face axes win unless an edge axis is clearly shallower (5 %), as in Box2D and
+    ODE, so resting boxes keep a stable face manifold."""
     P = len(ia)
     ca, cb = world.pos[ia], world.pos[ib]
     A, B = world.rot[ia], world.rot[ib]  # columns: box axes in world
@@ -567,15 +568,23 @@ def box_box(cm, world, ia, ib, margin):
                                   tie_tol) & \
         (np.abs(_dot(L[rows, face_a], L[rows, face_b])) < 1.0 - PARALLEL_COS)
     edge_tie = use_edge & hit & (overlap[rows, edge2] - e_ov <= tie_tol)
+    # An edge contact takes the shallowest face's manifold points within the margin (what
+    # the pair can close in a step) too: an edge lying across a face (a bar across a
+    # table) touches along a segment, and its one edge-edge point at a rim let it rock
+    # about that rim (kernels.collide.box_box does the same). Callers asking for the
+    # pair's depth alone (margin inf) keep the edge's.
+    near_face = use_edge & hit & np.isfinite(margin)
     other = np.where(face == face_a, face_b, face_a)
-    jobs = np.concatenate([rows, rows[face_tie]])  # pair of each face manifold
-    axis = np.concatenate([best, other[face_tie]])
+    jobs = np.concatenate([rows, rows[face_tie], rows[near_face]])  # pair of each face
+    axis = np.concatenate([best, other[face_tie], face[near_face]])  # manifold
+    n_near = int(near_face.sum())
+    is_face = np.concatenate([~use_edge, np.ones(len(jobs) - P, bool)])
+    fallback = np.concatenate([np.ones(len(jobs) - n_near, bool), np.zeros(n_near, bool)])
     job_n = L[jobs, axis] * axis_sign[jobs, axis]
     out = []
     # Face contacts: reference face on A (axes 0-2) or on B (axes 3-5).
     for on_a in (True, False):
-        job = np.flatnonzero(hit[jobs] & ~use_edge[jobs] & ((axis < 3) if on_a else
-                                                             (axis >= 3)))
+        job = np.flatnonzero(hit[jobs] & is_face & ((axis < 3) if on_a else (axis >= 3)))
         if not len(job):
             continue
         sel = jobs[job]
@@ -603,6 +612,8 @@ def box_box(cm, world, ia, ib, margin):
         for q in range(len(sel)):
             idx = np.flatnonzero(ok[q])
             if not len(idx):
+                if not fallback[job[q]]:
+                    continue
                 # Apart within the margin with faces that do not overlap side by side:
                 # the incident corner nearest to the reference plane, at the axis' gap.
                 corner = int(np.argmax(np.where(np.arange(24) < 4, depth[q], -np.inf)))
