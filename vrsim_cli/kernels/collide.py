@@ -1061,6 +1061,11 @@ def box_box(gf, W, ga, gb, margin, C, k):
     if not depth_sat >= -margin:
         return 0
     tie_tol = TIE_TOL * (1.0 + max(ha[0], ha[1], ha[2]) + max(hb[0], hb[1], hb[2]))
+    other = face_b if face == face_a else face_a
+    cos = abs(L[face_a, 0] * L[face_b, 0] + L[face_a, 1] * L[face_b, 1] +
+              L[face_a, 2] * L[face_b, 2])
+    faces_tie = abs(overlap[face_a] - overlap[face_b]) <= tie_tol and \
+        cos < 1.0 - PARALLEL_COS
     if use_edge:
         # the shallowest face's manifold points within the margin (what the pair can
         # close in a step) are contacts too, before the edge's: an edge lying across a
@@ -1070,15 +1075,15 @@ def box_box(gf, W, ga, gb, margin, C, k):
         # step, a pile of 4 boxes rocking for 11 s: tests/test_pile_rest.py). Those points
         # are points of the other box within the margin of the face, inside its rims.
         got = _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, face, margin, False, C, k)
+        if faces_tie:  # (both faces, as for face contacts: a mirror image's pair)
+            got += _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, other, margin, False,
+                             C, k + got)
         got += _box_edge(ca, cb, A, B, ha, hb, L, dist, overlap, best, C, k + got)
         if overlap[edge2] - e_ov <= tie_tol:
             got += _box_edge(ca, cb, A, B, ha, hb, L, dist, overlap, edge2, C, k + got)
         return got
     got = _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, best, margin, True, C, k)
-    other = face_b if face == face_a else face_a
-    cos = abs(L[face_a, 0] * L[face_b, 0] + L[face_a, 1] * L[face_b, 1] +
-              L[face_a, 2] * L[face_b, 2])
-    if abs(overlap[face_a] - overlap[face_b]) <= tie_tol and cos < 1.0 - PARALLEL_COS:
+    if faces_tie:
         got += _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, other, margin, True, C,
                          k + got)
     return got

@@ -564,20 +564,22 @@ def box_box(cm, world, ia, ib, margin):
     # an asymmetric impulse). Parallel faces (boxes stacked face to face) clip to the same
     # polygon either way: one is enough.
     tie_tol = TIE_TOL * (1.0 + ha.max(axis=1) + hb.max(axis=1))
-    face_tie = ~use_edge & hit & (np.abs(overlap[rows, face_a] - overlap[rows, face_b]) <=
-                                  tie_tol) & \
+    faces_tie = (np.abs(overlap[rows, face_a] - overlap[rows, face_b]) <= tie_tol) & \
         (np.abs(_dot(L[rows, face_a], L[rows, face_b])) < 1.0 - PARALLEL_COS)
+    face_tie = ~use_edge & hit & faces_tie
     edge_tie = use_edge & hit & (overlap[rows, edge2] - e_ov <= tie_tol)
     # An edge contact takes the shallowest face's manifold points within the margin (what
     # the pair can close in a step) too: an edge lying across a face (a bar across a
     # table) touches along a segment, and its one edge-edge point at a rim let it rock
     # about that rim (kernels.collide.box_box does the same). Callers asking for the
     # pair's depth alone (margin inf) keep the edge's.
+    # (both faces where they tie, as for face contacts: a mirror image's pair)
     near_face = use_edge & hit & np.isfinite(margin)
+    near_other = near_face & faces_tie
     other = np.where(face == face_a, face_b, face_a)
-    jobs = np.concatenate([rows, rows[face_tie], rows[near_face]])  # pair of each face
-    axis = np.concatenate([best, other[face_tie], face[near_face]])  # manifold
-    n_near = int(near_face.sum())
+    jobs = np.concatenate([rows, rows[face_tie], rows[near_face], rows[near_other]])
+    axis = np.concatenate([best, other[face_tie], face[near_face], other[near_other]])
+    n_near = int(near_face.sum()) + int(near_other.sum())
     is_face = np.concatenate([~use_edge, np.ones(len(jobs) - P, bool)])
     fallback = np.concatenate([np.ones(len(jobs) - n_near, bool), np.zeros(n_near, bool)])
     job_n = L[jobs, axis] * axis_sign[jobs, axis]
