@@ -1,12 +1,12 @@
 """Issue 48 (c): inclines as a class, in the compiled contact step.
 
-The compiled step (`kernels.stepped`) moves a body that took a contact impulse by
-symplectic Euler in that step (x1 = x0 + dt v1, the contact solve's model), and solves
-islands of a few contacts to convergence. So its velocities follow the closed forms of
-constant acceleration exactly, and its positions follow symplectic Euler's own closed
-forms, x_n = x_0 + dt (v_1 + ... + v_n): for a constant acceleration a from rest,
-x = a t (t + dt) / 2 (first order: off the exact a t^2 / 2 by dt / t relative). Truths,
-each written here from first principles (nothing of vrsim's computes them):
+The compiled step (`kernels.stepped`) applies the resting contact impulses as a constant
+wrench over the step, so a second-order integrator (verlet, rk4: the draws') moves the
+bodies by the mean of their start and end velocities (Moreau-Jean's theta = 1/2), and
+it solves islands of a few contacts to convergence. So velocities and positions both
+follow the closed forms of constant acceleration exactly: from rest, v = a t and
+x = a t^2 / 2. Truths, each written here from first principles (nothing of vrsim's
+computes them):
 
 - a body that friction can hold (mu > tan th: a box, a cylinder standing on its cap, a
   capsule lying along the fall line) stays where it is;
@@ -17,15 +17,18 @@ each written here from first principles (nothing of vrsim's computes them):
   capsule in closed form (`capsule_moments`);
 - a ball thrown sliding on level ground decelerates at mu g while its spin grows at
   5/2 mu g / r, and rolls from t* = 2 v0 / (7 mu g) on at 5/7 v0: the step's velocities
-  are v_k = max(v0 - mu g k dt, 5/7 v0), its positions their sums.
+  are v_k = max(v0 - mu g k dt, 5/7 v0), its positions the trapezoidal sums
+  dt (v_0 + v_1) / 2 + ...: the closed form at every step except after the one in which
+  rolling begins (that step's mean velocity cannot follow the kink of v(t) within it;
+  its position is off by at most mu g dt^2 / 8 from then on, the area between the chord
+  and the kink).
 
 The slope's normal is turned by a random yaw about the vertical too, so no case lines up
-with an axis. Tolerances: 1e-9 m or relative and 1e-9 rad, issue 48's bounds (measured:
-<= 1e-12). Before the islands were solved to convergence (8 sweeps; d504251), 31 of
-these 120 cases failed (the first steps up to 2e-2 off Coulomb's law); the exact a t^2 / 2 needs
-the mean-velocity position rule kept on branches wip/moreau-jean and wip/theta-half
-(there all 120 pass against a t^2 / 2; tests/test_stepped_pivot.py and
-docs/collision-response.md say why it is not on main).
+with an axis. Tolerances: 1e-9 m or relative and 1e-9 rad, issue 48's bounds. Before the
+islands were solved to convergence (8 sweeps; d504251), 31 of these 120 cases failed
+(the first steps up to 2e-2 off Coulomb's law); with positions by symplectic Euler (x = a
+t (t + dt) / 2, main before the mean-velocity rule) all sliding and rolling draws fail
+the a t^2 / 2 here.
 """
 
 from __future__ import annotations
@@ -217,7 +220,7 @@ def test_a_body_that_slides_follows_the_closed_form(seed):
     worst_x = worst_v = worst_turn = 0.0
     for s in states[1:]:
         t = s.t
-        x = 0.5 * a * t * (t + dt)  # symplectic Euler's sum of the v_k = a k dt
+        x = 0.5 * a * t * t
         worst_x = max(worst_x, float(np.linalg.norm(s.body_pos[1] - position - x * down)) / x)
         worst_v = max(worst_v, float(np.linalg.norm(s.body_vel[1] - a * t * down)) / (a * t))
         worst_turn = max(worst_turn, turned(q, s.body_quat[1]))
@@ -251,7 +254,7 @@ def test_a_sphere_or_capsule_rolls_at_the_closed_form(seed):
     for s in states[1:]:
         t = s.t
         worst_x = max(worst_x, float(np.linalg.norm(
-            s.body_pos[1] - position - 0.5 * a * t * (t + dt) * down)))
+            s.body_pos[1] - position - 0.5 * a * t * t * down)))
         worst_v = max(worst_v, float(np.linalg.norm(s.body_vel[1] - a * t * down)))
         # rolling: the contact point does not slip, w x (-r n) + v = 0
         slip = s.body_vel[1] + np.cross(s.body_angvel[1], -r * normal)
@@ -274,16 +277,19 @@ def test_a_ball_thrown_sliding_ends_rolling_at_the_closed_form_time_and_speed(se
                              velocity=(v0 * direction).tolist())
     v_star = 5.0 / 7.0 * v0
     up = np.array([0.0, 1.0, 0.0])
-    speeds = []  # v_k of the steps so far, and their sum (symplectic Euler's x_n / dt)
+    speeds = [v0]  # v_k of the steps so far; the positions their trapezoidal sums
     for s in states[1:]:
         t = s.t
         n = int(round(t / dt))
-        while len(speeds) < n:
-            speeds.append(max(v0 - mu * G * (len(speeds) + 1) * dt, v_star))
+        while len(speeds) < n + 1:
+            speeds.append(max(v0 - mu * G * len(speeds) * dt, v_star))
         v = s.body_vel[1]
         slip = v + np.cross(s.body_angvel[1], -r * up)
         assert np.linalg.norm(v - speeds[-1] * direction) <= 1e-9 * v0, (t, v, speeds[-1])
-        x = dt * math.fsum(speeds)
+        x = dt * (math.fsum(speeds) - 0.5 * (speeds[0] + speeds[-1]))
+        tc = min(t, t_star)  # the continuous closed form, within the kink's bound
+        exact = v0 * tc - 0.5 * mu * G * tc * tc + v_star * (t - tc)
+        assert abs(x - exact) <= mu * G * dt * dt / 8.0 + 1e-9, (t, x, exact)
         assert np.linalg.norm(s.body_pos[1, [0, 2]] - x * direction[[0, 2]]) <= 1e-9, t
         if t > t_star + dt:  # rolling, without slip
             assert np.linalg.norm(slip) <= 1e-9 * v0, (t, slip)

@@ -149,7 +149,14 @@ STEPPED_ORDER = ("stepped mode: kernels/stepped.py solves a pair's points by Gau
                  "asymmetry 0.13, 6e-16 with the islands' sweeps off (traced with "
                  "NUMBA_DISABLE_JIT); its island's sweeps in list order end on another "
                  "share of friction")
+STEPPED_CLOSING = ("stepped mode, theta = 1/2 (rk4 here): the position pass pulls loaded "
+                   "contacts that end apart closed (`kernels.stepped.push_out`) in sweeps in "
+                   "list order, and the box landing on its edge ends 6.5e-8 out of its plane "
+                   "(1e-16 with that closing off; off, 4 of 48 pivot draws gain energy, "
+                   "tests/test_stepped_pivot.py). Found 2026-12-07; a pair's points closed "
+                   "together would treat mirror corners alike")
 KNOWN = {
+    ("single", "stepped", 8): STEPPED_CLOSING,
     ("pair", "stepped", 4): STEPPED_ORDER,
     ("pair", "stepped", 7): STEPPED_ORDER,
     ("pair", "stepped", 8): STEPPED_ORDER,

@@ -2,16 +2,16 @@
 within its documented error, docs/collision-response.md "Many bodies: stepped impacts").
 
 The located tests' random cases (tests/test_incline.py, tests/test_simultaneous_impacts.py)
-run here with `collision: {impacts: stepped}`. Stepped mode moves a body in contact by
-symplectic Euler in that step (the contact model x1 = x0 + dt v1) and takes impacts at
-the step's start, so its positions are first order where located mode is exact; islands
-of a few contacts are solved to convergence. Its truths are symplectic Euler's own
-closed forms:
+run here with `collision: {impacts: stepped}`. Stepped mode takes impacts at the step's
+start and applies the resting impulses as a constant wrench over the step, so the
+draws' second-order integrators move a body in contact by the mean of its start and end
+velocities (Moreau-Jean's theta = 1/2); islands of a few contacts are solved to
+convergence. Truths:
 
-- a box sliding down an incline at a = g (sin th - mu cos th) from rest has v_n = a n dt
-  and x_n = x_0 + a dt^2 n (n + 1) / 2 = x_0 + a t (t + dt) / 2 (the sum of the v_k),
-  exactly (before the islands converged, 8 sweeps stopped short of Coulomb's law: up to
-  1e-3 relative in the first steps);
+- a box sliding down an incline at a = g (sin th - mu cos th) from rest has v = a t and
+  x = x_0 + a t^2 / 2, exactly (before the islands converged, 8 sweeps stopped short of
+  Coulomb's law: up to 1e-3 relative in the first steps; while contact bodies moved by
+  symplectic Euler, x was a t (t + dt) / 2);
 - a box dropped flat lands on its four corners at once: no spin, no sideways velocity,
   and it rebounds at eps times its speed less at most (1 + eps) g dt (the impact at the
   step's start of the step in which it lands).
@@ -44,29 +44,21 @@ def test_a_stepped_box_that_friction_can_hold_does_not_creep(seed):
 
 
 @pytest.mark.parametrize("seed", range(12))
-def test_a_stepped_box_slides_as_symplectic_euler_under_coulomb_friction(seed):
+def test_a_stepped_box_slides_at_the_closed_form_under_coulomb_friction(seed):
     rng, theta, th, yaw, size, mu = draw_sliding(seed)
     position, q, states = box_on_slope(rng, th, yaw, size, mu, STEPPED)
-    dt = step_of(states)
     a = G * (math.sin(th) - mu * math.cos(th))
     down = np.array([-math.cos(th), -math.sin(th), 0.0])
     worst_x = worst_v = worst_turn = 0.0
     for s in states[1:]:
         t = s.t
-        x = 0.5 * a * t * (t + dt)
+        x = 0.5 * a * t * t
         err_x = float(np.linalg.norm(s.body_pos[1] - position - x * down)) / x
         err_v = float(np.linalg.norm(s.body_vel[1] - a * t * down)) / (a * t)
         worst_x, worst_v = max(worst_x, err_x), max(worst_v, err_v)
         worst_turn = max(worst_turn, turned(q, s.body_quat[1]))
     assert worst_x <= 1e-9 and worst_v <= 1e-9, (theta, mu, worst_x, worst_v)
     assert worst_turn <= 1e-9, (theta, mu, worst_turn)
-
-
-def step_of(states) -> float:
-    """s: the scene's dt (box_on_slope draws 10 ms or 1/60 s), from a sample's time and
-    its step count."""
-    s = states[-1]
-    return s.t / s.step
 
 
 @pytest.mark.parametrize("pose,eps,mu,integrator,dt", CASES)

@@ -7,14 +7,15 @@ a, b, c: m/12 diag(b^2 + c^2, a^2 + c^2, a^2 + b^2) in its own frame), energy fr
 written states.
 
 Why this test: moving contact bodies by the mean of their start and end velocities
-(Moreau-Jean's theta = 1/2, tried this round on branch wip/moreau-jean) makes steady
-sliding and rolling exact, but the corner the box pivots on then ended steps 1-13 um
-above the floor, and 10 of these 16 draws gained 2e-8 .. 8e-6 of the energy per step
-(verlet, rk4, dopri5; found by an independent review). With the contact bodies moved by
-symplectic Euler (x1 = x0 + dt v1, the contact solve's model) none gains, in these 16
-and in 32 more (seeds 16-47, 2026-12-07). Any new position rule must pass this class;
-branch wip/theta-half passes it but leaves piles moving (docs/collision-response.md,
-item 7 of the stepped step).
+(Moreau-Jean's theta = 1/2) makes steady sliding and rolling exact, but with that rule
+alone the corner the box pivots on ended steps 1-13 um above the floor, and 10 of these
+16 draws gained 2e-8 .. 8e-6 of the energy per step (verlet, rk4, dopri5; found by an
+independent review). The compiled step now makes the mean velocity consistent with
+contact (kernels.stepped, item 7: approaches stopped at full weight, held pairs holding
+in the mean, loaded contacts closed by the position pass); each of those rules alone
+left 4-10 of the 16 gaining. Of 48 draws (seeds 0-47), seed 16 (a box that slides on
+its pivot edge, dopri5) still gains 4.5e-7 in one step: docs/collision-response.md,
+"Integration", says why.
 
 Draws: sides 0.1-0.6 m, tilt 10-70 deg about the edge, mu 0.3-1.0, 0.2-5 kg, dt 1/100 -
 1/240 s, verlet, rk4 or dopri5, 2 s, the box's edge along z (3D) or the scene planar

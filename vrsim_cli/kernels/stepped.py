@@ -24,13 +24,16 @@ state S at the step's start, one call of `entry(...)` does:
 6. small islands (bodies joined by contacts, at most SMALL_ISLAND_ROWS rows) rest on to
    convergence (`rest_small_islands`); larger ones keep the scene's `iterations` sweeps
    and the shock levels;
-7. the impulses go to the integrator as a constant wrench (impulse / dt per body), and a
-   body that took one moves by symplectic Euler in that step (x1 = x0 + dt v1, the
-   contact solve's model); free bodies keep the scene's integrator. (Moving contact
-   bodies by the mean of their start and end velocities instead, as Moreau-Jean's
-   theta = 1/2 does, makes steady sliding and rolling exact but let a box falling over
-   an edge gain up to 8e-6 of its energy per step: tests/test_stepped_pivot.py; kept
-   on branch wip/moreau-jean until the position update is energy-consistent.)
+7. Moreau-Jean's theta = 1/2: the impacts' velocity change is added to the start state
+   (positions move by all of it), the resting impulses go to the scene's integrator as
+   a constant wrench (impulse / dt per body), so a second-order integrator moves a body
+   by the mean of its start and end velocities and steady sliding and rolling are
+   exact (symplectic Euler keeps x1 = x0 + dt v1; Euler moves a body that took a
+   resting impulse by symplectic Euler). For that mean velocity to be consistent with
+   contact, every approach that closes within the step is an impact (`impact_pair`),
+   a pair that held at the end of the last step holds in the mean (`_target`, the
+   friction of `_rest_row`), and the position pass closes loaded contacts that end
+   apart (docs/collision-response.md, "Integration");
 8. whatever still penetrates is pushed out along the normals by pseudo-velocities
    (a position-only Gauss-Seidel): positions and orientations change, velocities do
    not, and a body turned by it keeps its body-frame angular momentum, so its kinetic
@@ -94,7 +97,9 @@ K_SN = 80  # shock propagation's impulses on the upper body (normal, two tangent
 K_LK = 83  # impact impulses with the bodies' turning locked (normal, two tangents), N s
 K_KLIN = 86  # m/s: the kick's change of the relative linear velocity along n, t1, t2
 K_ROUND = 89  # m: the rounding radii at the witness points on A and B (collide.C_ROUND_A)
-K_SIZE = 91
+K_V0N = 91  # m/s: a held contact's normal velocity at the step's start (impacts in), if > 0
+K_V0T = 92  # m/s: a stuck contact's slip velocity (two tangents) at the step's start
+K_SIZE = 94
 
 MAX_ELASTIC_PASSES = 32  # impacts per contact in a step before its restitution drops to 0
 MAX_IMPACT_SWEEPS = 64  # sweeps over the pairs of the impact phase
@@ -326,6 +331,9 @@ def prepare(K, i, C, q, S, inv_m, IW, V0, W0, U, Wv, rb, rp, prm):
         K[i, c] = 0.0
     for c in range(K_SN, K_LK + 3):
         K[i, c] = 0.0
+    K[i, K_V0N] = 0.0
+    K[i, K_V0T] = 0.0
+    K[i, K_V0T + 1] = 0.0
 
 
 @kernel(inline="always")
@@ -393,17 +401,18 @@ def _add_impulse(K, i, j, lam, DP, DL, turning):
 
 
 @kernel
-def wrench(K, k, DP, DL):
-    """The impulse sums DP, DL (n, 3) (N s, N m s; world) of all contacts' impacts and
-    resting impulses, through the same arm crosses the velocities saw (impacts with
-    turning locked push without torque)."""
+def wrench(K, k, DP, DL, DPi, DLi):
+    """The impulse sums (N s, N m s; world; (n, 3) each) through the same arm crosses the
+    velocities saw: the resting impulses into DP, DL, the impacts' into DPi, DLi (impacts
+    with turning locked push without torque)."""
     for i in range(k):
         for j in range(3):
-            lam = K[i, K_LN + j] + K[i, K_IN + j]
-            if lam != 0.0:
-                _add_impulse(K, i, j, lam, DP, DL, True)
+            if K[i, K_LN + j] != 0.0:
+                _add_impulse(K, i, j, K[i, K_LN + j], DP, DL, True)
+            if K[i, K_IN + j] != 0.0:
+                _add_impulse(K, i, j, K[i, K_IN + j], DPi, DLi, True)
             if K[i, K_LK + j] != 0.0:
-                _add_impulse(K, i, j, K[i, K_LK + j], DP, DL, False)
+                _add_impulse(K, i, j, K[i, K_LK + j], DPi, DLi, False)
 
 
 @kernel(inline="always")
@@ -433,13 +442,15 @@ def friction(K, i, lt1, lt2, vt1, vt2, limit):
 
 
 @kernel
-def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
+def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam, mean):
     """The impact of one pair's points c0 .. c1 - 1 at the step's start, if any of them
     approaches faster than `bounce` and would close within the step: all its approaching
     points in one Gauss-Seidel solve to convergence, each normal towards -eps v_n (v_n its
     approach velocity before this impact, at the step's start: the current one less the
     kick), the slower ones towards -gap/dt (they arrive; gap: the pair's smallest), with Coulomb
-    friction; a plastic impact (eps 0) also aims at -gap/dt: it lands on the surface. Returns whether it acted.
+    friction; a plastic impact (eps 0) also aims at -gap/dt: it lands on the surface.
+    `mean` (positions move by the mean velocity): a pair whose points all approach
+    slower than `bounce` takes its (plastic) impact too. Returns whether it acted.
     lam (>= 3 (c1 - c0),): scratch."""
     fast = False
     m = c1 - c0
@@ -467,6 +478,11 @@ def impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
                 lam[3 * q + 1] = -eps * vn if eps > 0.0 else arrive
             else:
                 lam[3 * q + 1] = arrive
+            # slow ones too where positions move by the mean velocity: an approach at the
+            # step's start is stopped at the step's start, so that the positions move by
+            # the stopped velocity (a slow approach stopped by the rest would end
+            # h |v_n| / 2 deep, and the position pass would lift it: energy from nowhere)
+            fast = fast or mean
             lam[3 * q] = 0.0
     if not fast:
         return False
@@ -1256,7 +1272,7 @@ def _linear(K, i, j, lam, U):
 
 
 @kernel
-def impacts(K, starts, npairs, first_pair, dt, bounce, U, Wv, changed):
+def impacts(K, starts, npairs, first_pair, dt, bounce, U, Wv, changed, mean):
     """The impact phase over the pairs from `first_pair` on (starts (npairs + 1,): the
     first contact of each pair): sweeps in pair order, each pair visited while one of its
     bodies changed in the last sweep, until no pair acts (or MAX_IMPACT_SWEEPS).
@@ -1273,7 +1289,7 @@ def impacts(K, starts, npairs, first_pair, dt, bounce, U, Wv, changed):
                 continue
             if c1 - c0 > kc.MAX_PER_PAIR * 2:
                 continue
-            if impact_pair(K, c0, c1, dt, bounce, U, Wv, lam):
+            if impact_pair(K, c0, c1, dt, bounce, U, Wv, lam, mean):
                 changed[a] = sweep
                 changed[b] = sweep
                 acted = True
@@ -1285,10 +1301,15 @@ def impacts(K, starts, npairs, first_pair, dt, bounce, U, Wv, changed):
 
 
 @kernel
-def warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv):
+def warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv, held):
     """Start the resting impulses from last step's (the same pair and rank within the
     pair; rows of impacts, toi = 0, are not used): the world impulse projected on this
-    contact's basis, the normal >= 0, friction in its disc."""
+    contact's basis, the normal >= 0, friction in its disc. held (k, 2) bool, out: the
+    contact was loaded at the end of the last step (a normal impulse > 0), and it stuck
+    (its friction inside the cone, STICK_MARGIN)."""
+    for i in range(k):
+        held[i, 0] = False
+        held[i, 1] = False
     np_ = prev_a.shape[0]
     if np_ == 0 or k == 0:
         return
@@ -1306,13 +1327,18 @@ def warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv):
             j_end += 1
         for q in range(min(i_end - i, j_end - j)):
             row, old = i + q, j + q
-            if prev_toi[old] == prev_toi[old] or int(K[row, K_MODE]) != IMPULSE:
+            if int(K[row, K_MODE]) != IMPULSE:
                 continue
             P = (prev_imp[old, 0], prev_imp[old, 1], prev_imp[old, 2])
             ln = max(la.dot(P, get(K, row, K_N)), 0.0)
             l1, l2 = la.dot(P, get(K, row, K_T1)), la.dot(P, get(K, row, K_T2))
             limit = K[row, K_MU] * ln
             norm = math.sqrt(l1 * l1 + l2 * l2)
+            # held by an impact too (a landing that stopped it), but not started from it
+            held[row, 0] = ln > 0.0
+            held[row, 1] = ln > 0.0 and norm < STICK_MARGIN * limit
+            if prev_toi[old] == prev_toi[old]:
+                continue
             if norm > limit:
                 s = limit / norm if norm > 0.0 else 0.0
                 l1, l2 = l1 * s, l2 * s
@@ -1325,16 +1351,29 @@ def warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv):
 
 
 @kernel(inline="always")
+def _target(K, i, dt):
+    """The least normal velocity at the step's end of resting contact i: the gap may
+    close within the step; and a contact that held at the end of the last step but
+    separates at this step's start (K_V0N > 0: its arm turned with the body, as a box's
+    pivoting on an edge) may approach as fast at the end, so that its mean velocity,
+    which moves the positions, does not open it (opened, the corner rose 1-13 um a step:
+    potential energy no force paid for)."""
+    return -max(K[i, K_GAP], 0.0) / dt - K[i, K_V0N]
+
+
+@kernel(inline="always")
 def _rest_row(K, i, dt, U, Wv):
     """One Gauss-Seidel update of resting contact i (`rest`); returns the largest change
     of its three impulses, N s."""
-    target = -max(K[i, K_GAP], 0.0) / dt
+    target = _target(K, i, dt)
     vn = rel3(K, i, U, Wv)[0]
     new = max(K[i, K_LN] + (target - vn) * K[i, K_MN], 0.0)
     d0 = new - K[i, K_LN]
     apply(K, i, 0, d0, U, Wv)
     K[i, K_LN] = new
     _, vt1, vt2 = rel3(K, i, U, Wv)
+    vt1 += K[i, K_V0T]
+    vt2 += K[i, K_V0T + 1]
     s1, s2 = friction(K, i, K[i, K_LT], K[i, K_LT + 1], vt1, vt2, K[i, K_MU] * new)
     d1, d2 = s1 - K[i, K_LT], s2 - K[i, K_LT + 1]
     apply(K, i, 1, d1, U, Wv)
@@ -1784,7 +1823,7 @@ def _shock_direct(K, cont, ncont, u, dt, im, IW, U, Wv, DP, DL, act, fix, rows, 
                 for c in range(3):
                     J[nr, c] = s * K[i, d + c]
                     J[nr, 3 + c] = s * K[i, arm + c] / arm_len
-                target = -max(K[i, K_GAP], 0.0) / dt if j == 0 else 0.0
+                target = _target(K, i, dt) if j == 0 else -K[i, K_V0T + j - 1]
                 fixed = s * (K[i, d] * f0 + K[i, d + 1] * f1 + K[i, d + 2] * f2
                              + K[i, arm] * g0 + K[i, arm + 1] * g1 + K[i, arm + 2] * g2)
                 bb[nr] = target - rel(K, i, j, U, Wv) - fixed
@@ -1931,7 +1970,7 @@ def _shock_direct(K, cont, ncont, u, dt, im, IW, U, Wv, DP, DL, act, fix, rows, 
             v = rel(K, i, 0, U, Wv) + s * (
                 K[i, K_N] * dv0 + K[i, K_N + 1] * dv1 + K[i, K_N + 2] * dv2
                 + K[i, arm] * dw0 + K[i, arm + 1] * dw1 + K[i, arm + 2] * dw2)
-            if v < -max(K[i, K_GAP], 0.0) / dt - slack:
+            if v < _target(K, i, dt) - slack:
                 back = q
                 break
         if back >= 0:
@@ -1983,9 +2022,9 @@ def _shock_sweep(K, i, level, dt, U, Wv, DP, DL):
             # held as well as one that sinks (an impact's impulse stays: a bounce is not
             # pulled back)
             floor = -K[i, K_LN]
-            new = max(old + (-max(K[i, K_GAP], 0.0) / dt - v) / mass, min(floor, 0.0))
+            new = max(old + (_target(K, i, dt) - v) / mass, min(floor, 0.0))
         else:
-            new = old - v / mass
+            new = old - (v + K[i, K_V0T + j - 1]) / mass
             if j == 2:  # both tangents: the whole friction in the disc
                 limit = K[i, K_MU] * (K[i, K_LN] + K[i, K_IN] + K[i, K_SN])
                 t1 = K[i, K_LT] + K[i, K_IT] + K[i, K_SN + 1]
@@ -2164,17 +2203,27 @@ def _pos_roundoff(K, i):
     return POS_ROUNDOFF * arm
 
 
+@kernel(inline="always")
+def _loaded(K, i):
+    """Whether contact i carried a resting normal impulse (the rest's or the shock's)."""
+    return int(K[i, K_MODE]) == IMPULSE and K[i, K_LN] + K[i, K_SN] > 0.0
+
+
 @kernel
 def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, dth,
-             until_fixed):
-    """The position pass: pseudo-impulses Q >= 0 along the normals (Gauss-Seidel on the
+             until_fixed, mean):
+    """The position pass: pseudo-impulses Q along the normals (Gauss-Seidel on the
     linearised separations, the contacts ground up in `order` (k,), and with shock
     propagation: a contact between two `level`s moves its upper body only) until every
     contact that ends deeper than `slop` (and than round-off, POS_ROUNDOFF) is back at
-    -slop; then the bodies are moved by dx and turned by exp(dth), their angular momentum
-    turned with them (body-frame L kept, so the kinetic energy is unchanged), and no
-    velocity changes. dx, dth (n, 3): scratch. `until_fixed`: stop after a sweep that
-    moved nothing (later sweeps would repeat it exactly)."""
+    -slop, and, where positions move by the mean velocity (`mean`), every loaded one (a
+    resting normal impulse > 0: its velocity solve kept it closed) that ends apart is
+    back at -slop too (Q < 0 allowed there: the arc of a pivoting body's turn lifted its
+    loaded corner 1-13 um a step, potential energy that no velocity paid for); then the
+    bodies are moved by dx and turned by exp(dth), their angular momentum turned with
+    them (body-frame L kept, so the kinetic energy is unchanged), and no velocity
+    changes. dx, dth (n, 3): scratch. `until_fixed`: stop after a sweep that moved
+    nothing (later sweeps would repeat it exactly)."""
     n = S1.shape[0]
     for b in range(n):
         for c in range(3):
@@ -2185,6 +2234,8 @@ def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, d
         K[i, K_Q] = 0.0
         mode = int(K[i, K_MODE])
         deep = K[i, K_SEND] < -slop - _pos_roundoff(K, i)
+        if mean and _loaded(K, i):
+            deep = abs(K[i, K_SEND] + slop) > _pos_roundoff(K, i)
         if (mode == IMPULSE or mode == SLIDE) and deep:
             any_deep = True
     if not any_deep:
@@ -2211,9 +2262,13 @@ def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, d
                     imb = 0.0
                 mass = _upper_mass(K, i, 0, upper_b, imb if upper_b else ima)
                 inv_k = 1.0 / mass if mass > 0.0 else 0.0
-            if K[i, K_Q] == 0.0 and sep + slop >= -_pos_roundoff(K, i):
-                continue  # deep by round-off only: not pushed
-            new = max(K[i, K_Q] - (sep + slop) * inv_k, 0.0)
+            loaded = mean and _loaded(K, i)
+            if K[i, K_Q] == 0.0 and (abs(sep + slop) <= _pos_roundoff(K, i) if loaded
+                                     else sep + slop >= -_pos_roundoff(K, i)):
+                continue  # deep (or, loaded, apart) by round-off only: not moved
+            new = K[i, K_Q] - (sep + slop) * inv_k
+            if not loaded:
+                new = max(new, 0.0)
             q = new - K[i, K_Q]
             if q == 0.0:
                 continue
@@ -2479,6 +2534,7 @@ def _make_entry(integ: int, kinds: tuple):
     # attribute of a module, and typed all five: 105 -> 81 s CPU of a first stepped run)
     EU, SE, VE, R4 = (integ == kd.EULER, integ == kd.SYMPLECTIC_EULER,
                       integ == kd.VERLET, integ == kd.RK4)
+    MEAN = not (EU or SE)  # positions move by the mean velocity (`_target`)
     SS, PS, BS, CS, YS, PB, PY, PC, CC, BC, BB = kinds
 
     @kernel
@@ -2511,6 +2567,7 @@ def _make_entry(integ: int, kinds: tuple):
         pad = np.empty(ng)
         lo, hi = np.empty((ng, 3)), np.empty((ng, 3))
         DP, DL = np.zeros((n, 3)), np.zeros((n, 3))
+        DPi, DLi = np.zeros((n, 3)), np.zeros((n, 3))
         K = np.zeros((16, K_SIZE))
         k = np.int64(0)
         k0 = np.int64(0)
@@ -2619,13 +2676,48 @@ def _make_entry(integ: int, kinds: tuple):
                 k0 = k
             starts = np.empty(k - first_new + 1, np.int64)
             npairs = pair_starts(K, k, first_new, starts)
-            impacts(K, starts, npairs, 0, dt, bounce, U, Wv, changed)
+            impacts(K, starts, npairs, 0, dt, bounce, U, Wv, changed, MEAN)
             if rnd == 0:
+                # the contacts' velocities at the step's start, impacts in (the kick taken
+                # out again), before the warm start changes them: a contact that held at
+                # the end of the last step holds in the mean over this one (`_target`)
+                v0 = np.empty((k, 3))
+                for i in range(k):
+                    for j in range(3):
+                        v0[i, j] = rel(K, i, j, U, Wv) - K[i, K_KICK + j]
                 # after the impacts: they read the start-of-step approach velocities, which
                 # last step's resting impulses must not change (an impulse the rest would
                 # take back again is otherwise bounced on: energy gain in piles)
-                warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv)
-                slide(K, k, dt, inv_m, U, DP)
+                held = np.empty((k, 2), np.bool_)
+                warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv, held)
+                if MEAN:
+                    # a pair holds as a whole, so that mirror-image points are treated
+                    # alike (each point's own test split them by round-off, one loaded or
+                    # stuck and the other not, and a symmetric box turned out of its
+                    # plane): it held if one of its points carried load, and stuck if all
+                    # those did stick; then every point of it holds in the mean (a point
+                    # that carried none, apart, is only let close more slowly: `_target`)
+                    i = 0
+                    while i < k:
+                        i_end = i
+                        loaded, stuck = False, True
+                        while i_end < k and K[i_end, K_A] == K[i, K_A] and \
+                                K[i_end, K_B] == K[i, K_B]:
+                            if held[i_end, 0]:
+                                loaded = True
+                                stuck = stuck and held[i_end, 1]
+                            i_end += 1
+                        for q in range(i, i_end):
+                            held[q, 0] = loaded
+                            held[q, 1] = loaded and stuck
+                        i = i_end
+                    for i in range(k):
+                        if held[i, 0]:
+                            K[i, K_V0N] = max(v0[i, 0], 0.0)
+                        if held[i, 1]:
+                            K[i, K_V0T] = v0[i, 1]
+                            K[i, K_V0T + 1] = v0[i, 2]
+                slide(K, k, dt, inv_m, U, DPi)
             if rested:  # pairs found after the rest: rest again with them
                 rest(K, k, dt, int(prm[PR_ITER]), U, Wv, True)
             rnd += 1
@@ -2634,46 +2726,68 @@ def _make_entry(integ: int, kinds: tuple):
         contact_levels(K, k, inv_m, tol, level)
         order, m_order = level_order(K, k, level, True)
         shock(K, order, m_order, level, dt, SHOCK_ITERATIONS, U, Wv, DP, DL, True, IW)
-        wrench(K, k, DP, DL)
-        # the impulses as a constant wrench over the step: the integrator applies them
+        wrench(K, k, DP, DL, DPi, DLi)
+        # the resting impulses as a constant wrench over the step: the integrator applies
+        # them as it does the forces (a second-order one moves positions by the mean of
+        # the start and end velocities, Moreau-Jean's theta = 1/2, so motion at a steady
+        # acceleration in contact is exact); the impacts at the step's start, where they
+        # were solved: their whole velocity change moves the positions
         for b in range(n):
             for c in range(3):
                 ext[b, c] = DP[b, c] / dt
                 ext[b, 3 + c] = DL[b, c] / dt
+        S0i, RS0i = S, RS
+        kicked = False
+        for b in range(n):
+            for c in range(3):
+                if DPi[b, c] != 0.0 or DLi[b, c] != 0.0:
+                    kicked = True
+        if kicked:
+            S0i, RS0i = S.copy(), RS.copy()
+            for b in range(n):
+                if inv_m[b] == 0.0:
+                    continue
+                for c in range(3):
+                    S0i[b, kd.S_VEL + c] += DPi[b, c] * inv_m[b]
+                slot = kd.slot_of(mf, b)
+                if slot >= 0:
+                    dw = la.matvec(kd.row9(IW, b, 0), kd.row3(DLi, b, 0))
+                    for c in range(3):
+                        RS0i[slot, kd.RS_L + c] += DLi[b, c]
+                        S0i[b, kd.S_ANGVEL + c] += dw[c]
         for b in range(n):  # quaternions of bodies that do not turn stay as they are
             for c in range(kd.S_QUAT, kd.S_QUAT + 4):
                 S1[b, c] = S[b, c]
         h_prop = prm[PR_H_PROP]
         ratios = wm[kd.WM_RATIOS:kd.WM_RATIOS + 16]
         if EU:
-            kd.step_euler(mf, step, t, dt, S, RS, ext, S1, RS1, wb, wr)
+            kd.step_euler(mf, step, t, dt, S0i, RS0i, ext, S1, RS1, wb, wr)
         elif SE:
-            kd.step_symplectic(mf, step, t, dt, S, RS, ext, S1, RS1, wb, wr, ratios)
+            kd.step_symplectic(mf, step, t, dt, S0i, RS0i, ext, S1, RS1, wb, wr, ratios)
         elif VE:
-            kd.step_verlet(mf, step, t, dt, S, RS, ext, S1, RS1, wb, wr, ratios)
+            kd.step_verlet(mf, step, t, dt, S0i, RS0i, ext, S1, RS1, wb, wr, ratios)
         elif R4:
             Ss, S0, RSs = np.empty((n, kd.S_SIZE)), np.empty((n, kd.S_SIZE)), \
                 np.empty((r, kd.RS_SIZE))
-            kd.step_rk4(mf, step, t, dt, S, RS, ext, S1, RS1, wb, wr, kS, Ss, S0, RSs)
+            kd.step_rk4(mf, step, t, dt, S0i, RS0i, ext, S1, RS1, wb, wr, kS, Ss, S0, RSs)
         else:
             Ss, S0, RSs = np.empty((n, kd.S_SIZE)), np.empty((n, kd.S_SIZE)), \
                 np.empty((r, kd.RS_SIZE))
-            h_prop = kd.step_dopri5(mf, step, t, dt, S, RS, ext, S1, RS1, wb, wr, wm, kS,
+            h_prop = kd.step_dopri5(mf, step, t, dt, S0i, RS0i, ext, S1, RS1, wb, wr, wm, kS,
                                     Ss, S0, RSs, h_prop)
             if h_prop < 0.0:
                 return np.empty((0, O_SIZE)), 0, h_prop
-        kd.post_step(mf, body_frame, step, dt, RS, S1, RS1)
-        if not SE:
-            # a body that took a contact impulse moves with symplectic Euler in this step:
-            # the contact solve's model is x1 = x0 + dt v1 (verlet's or rk4's average
-            # velocity would carry only half of an impulse into the position, and the
-            # position pass then rocked a 10-box stack); free bodies keep the order of the
-            # scene's integrator
+        kd.post_step(mf, body_frame, step, dt, RS0i, S1, RS1)
+        if EU:
+            # Euler's positions do not see the step's forces (x1 = x0 + dt v0): a body
+            # that took a resting impulse moves with symplectic Euler in this step, the
+            # contact solve's model for it; free bodies keep Euler
             touched = np.zeros(n, np.bool_)
             any_touched = False
             for b in range(n):
                 for c in range(3):
-                    if DP[b, c] != 0.0 or DL[b, c] != 0.0:
+                    if DP[b, c] != 0.0 or DL[b, c] != 0.0 or DPi[b, c] != 0.0 \
+                            or DLi[b, c] != 0.0:
                         touched[b] = True
                 if touched[b]:
                     any_touched = True
@@ -2682,8 +2796,8 @@ def _make_entry(integ: int, kinds: tuple):
                 for b in range(n):
                     for c in range(kd.S_QUAT, kd.S_QUAT + 4):
                         Sx[b, c] = S[b, c]
-                kd.step_symplectic(mf, step, t, dt, S, RS, ext, Sx, RSx, wb, wr, ratios)
-                kd.post_step(mf, False, step, dt, RS, Sx, RSx)
+                kd.step_symplectic(mf, step, t, dt, S0i, RS0i, ext, Sx, RSx, wb, wr, ratios)
+                kd.post_step(mf, False, step, dt, RS0i, Sx, RSx)
                 for b in range(n):
                     if touched[b] and inv_m[b] != 0.0:
                         for c in range(kd.S_SIZE):
@@ -2721,7 +2835,7 @@ def _make_entry(integ: int, kinds: tuple):
         dx, dth = np.empty((n, 3)), np.empty((n, 3))
         everything, _ = level_order(K, k, level, False)
         push_out(mf, K, k, everything, level, int(prm[PR_POS_ITER]), prm[PR_SLOP], inv_m,
-                 IW, S1, RS1, dx, dth, True)
+                 IW, S1, RS1, dx, dth, True, MEAN)
         if k > k0:  # rows of later rounds were appended: sort them in (K_A, K_B are
             K = kc.sort_by_pair(K, k)  # columns 0 and 1, as in detection's rows)
         OUT, m_out = outputs(K, k, tol)
