@@ -1301,7 +1301,7 @@ def impacts(K, starts, npairs, first_pair, dt, bounce, U, Wv, changed, mean):
 
 
 @kernel
-def warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv, held):
+def warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, prev_rest, mean, U, Wv, held):
     """Start the resting impulses from last step's (the same pair and rank within the
     pair; rows of impacts, toi = 0, are not used): the world impulse projected on this
     contact's basis, the normal >= 0, friction in its disc. held (k, 2) bool, out: the
@@ -1337,7 +1337,17 @@ def warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv, held):
             # held by an impact too (a landing that stopped it), but not started from it
             held[row, 0] = ln > 0.0
             held[row, 1] = ln > 0.0 and norm < STICK_MARGIN * limit
-            if prev_toi[old] == prev_toi[old]:
+            if mean:
+                # with the mean every slow approach is an impact: a pile's resting
+                # contacts take one each step, so they start from their resting part
+                # (from nothing they never converged in a 20-box pile, which then never
+                # settled; from the whole impulse, the impact's part broke a mirror case)
+                P = (prev_rest[old, 0], prev_rest[old, 1], prev_rest[old, 2])
+                ln = max(la.dot(P, get(K, row, K_N)), 0.0)
+                l1, l2 = la.dot(P, get(K, row, K_T1)), la.dot(P, get(K, row, K_T2))
+                limit = K[row, K_MU] * ln
+                norm = math.sqrt(l1 * l1 + l2 * l2)
+            elif prev_toi[old] == prev_toi[old]:
                 continue
             if norm > limit:
                 s = limit / norm if norm > 0.0 else 0.0
@@ -2308,6 +2318,75 @@ def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, d
 
 
 @kernel
+def end_stop(mf, K, k, inv_m, iterations, S1, RS1):
+    """Where positions move by the mean velocity: a stuck pair's end slip to zero,
+    velocities only. Such a pair took the target slip -v0_t (`_rest_row`), so its mean
+    slip, which moved the positions, is zero; its end velocity -v0_t is the scheme's
+    artefact (next step it would take +v0_t again: a still box in a pile reported an
+    alternating 4 mm/s for ever). Read as an impulsive stop of the start slip plus a
+    force that keeps it stopped, the same positions end with zero slip: Gauss-Seidel on
+    the end velocities with the pair's friction disc (the rest's normal impulse) as its
+    bound. Every update is a projection in the mass metric, so kinetic energy only
+    falls; positions are not touched."""
+    n = S1.shape[0]
+    V, Wd = np.empty((n, 3)), np.empty((n, 3))
+    for b in range(n):
+        for c in range(3):
+            V[b, c] = S1[b, kd.S_VEL + c]
+            Wd[b, c] = S1[b, kd.S_ANGVEL + c]
+    DPc, DLc = np.zeros((n, 3)), np.zeros((n, 3))
+    extra = np.zeros((k, 3))
+    touched = False
+    for _ in range(iterations):
+        moved = False
+        for i in range(k):
+            if int(K[i, K_MODE]) != IMPULSE or K[i, K_LN] + K[i, K_IN] <= 0.0:
+                continue
+            d0 = 0.0
+            if False and K[i, K_V0N] > 0.0:  # it took the approach -v0_n: a plastic stop at the end
+                vn = rel(K, i, 0, V, Wd)
+                new = max(extra[i, 0] - vn * K[i, K_MN], 0.0)
+                d0 = new - extra[i, 0]
+                apply(K, i, 0, d0, V, Wd)
+                _add_impulse(K, i, 0, d0, DPc, DLc, True)
+                extra[i, 0] = new
+            d1, d2 = 0.0, 0.0
+            if _sticks(K, i) and (K[i, K_V0T] != 0.0 or K[i, K_V0T + 1] != 0.0):
+                l1 = K[i, K_LT] + K[i, K_IT] + extra[i, 1]
+                l2 = K[i, K_LT + 1] + K[i, K_IT + 1] + extra[i, 2]
+                vt1, vt2 = rel(K, i, 1, V, Wd), rel(K, i, 2, V, Wd)
+                s1, s2 = friction(K, i, l1, l2, vt1, vt2,
+                                  K[i, K_MU] * (K[i, K_LN] + K[i, K_IN] + extra[i, 0]))
+                d1, d2 = s1 - l1, s2 - l2
+                apply(K, i, 1, d1, V, Wd)
+                apply(K, i, 2, d2, V, Wd)
+                _add_impulse(K, i, 1, d1, DPc, DLc, True)
+                _add_impulse(K, i, 2, d2, DPc, DLc, True)
+                extra[i, 1] += d1
+                extra[i, 2] += d2
+            if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
+                moved = touched = True
+        if not moved:
+            break
+    if not touched:
+        return
+    for b in range(n):
+        if inv_m[b] == 0.0:
+            continue
+        for c in range(3):
+            S1[b, kd.S_VEL + c] += DPc[b, c] * inv_m[b]
+    for q in range(RS1.shape[0]):
+        i = kd.at(mf, kd.H_ROT, q, kd.RT_SIZE)
+        b = int(mf[i + kd.RT_INDEX])
+        if mf[i + kd.RT_KINEMATIC] != 0.0 or inv_m[b] == 0.0:
+            continue
+        for c in range(3):
+            RS1[q, kd.RS_L + c] += DLc[b, c]
+        kd.put3(S1, b, kd.S_ANGVEL, kd.world_omega(mf, q, kd.row9(RS1, q, kd.RS_R),
+                                                     kd.row3(RS1, q, kd.RS_L)))
+
+
+@kernel
 def pair_starts(K, k, first, starts):
     """starts[p]: the first row of each pair (rows sorted or appended by pair) from row
     `first` on; returns the number of pairs. starts (>= k + 1,)."""
@@ -2440,7 +2519,7 @@ def expand_pairs(gf, lo, hi, pad, step, grown, K, k0, k):
 
 
 # output rows
-O_A, O_B, O_P, O_N, O_D, O_TOI, O_IMP, O_SIZE = 0, 1, 2, 5, 8, 9, 10, 13
+O_A, O_B, O_P, O_N, O_D, O_TOI, O_IMP, O_REST, O_SIZE = 0, 1, 2, 5, 8, 9, 10, 13, 16
 
 
 @kernel
@@ -2481,6 +2560,9 @@ def outputs(K, k, tol):
                 for c in range(3):
                     OUT[m, O_IMP + c] = ln * K[q, K_N + c] + l1 * K[q, K_T1 + c] + \
                         l2 * K[q, K_T2 + c]
+                    # the resting part alone (the next step's warm start with the mean)
+                    OUT[m, O_REST + c] = K[q, K_LN] * K[q, K_N + c] + \
+                        K[q, K_LT] * K[q, K_T1 + c] + K[q, K_LT + 1] * K[q, K_T2 + c]
                 m += 1
         i = j
     return OUT, m
@@ -2538,7 +2620,8 @@ def _make_entry(integ: int, kinds: tuple):
     SS, PS, BS, CS, YS, PB, PY, PC, CC, BC, BB = kinds
 
     @kernel
-    def step_kernel(mf, gf, rb, rp, prm, S, RS, prev_a, prev_b, prev_toi, prev_imp, XC,
+    def step_kernel(mf, gf, rb, rp, prm, S, RS, prev_a, prev_b, prev_toi, prev_imp, prev_rest,
+                    XC,
                     KIN, KIN_RS, S1, RS1, wb, wr, wm, kS):
         """One stepped step from (S, RS) into (S1, RS1) (module docstring). XC (x, C_SIZE):
         contacts of the pairs Python detects (meshes, hulls), at S. KIN, KIN_RS: the end
@@ -2689,7 +2772,8 @@ def _make_entry(integ: int, kinds: tuple):
                 # last step's resting impulses must not change (an impulse the rest would
                 # take back again is otherwise bounced on: energy gain in piles)
                 held = np.empty((k, 2), np.bool_)
-                warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, U, Wv, held)
+                warm_start(K, k, prev_a, prev_b, prev_toi, prev_imp, prev_rest, MEAN, U, Wv,
+                           held)
                 if MEAN:
                     # a pair holds as a whole, so that mirror-image points are treated
                     # alike (each point's own test split them by round-off, one loaded or
@@ -2836,6 +2920,8 @@ def _make_entry(integ: int, kinds: tuple):
         everything, _ = level_order(K, k, level, False)
         push_out(mf, K, k, everything, level, int(prm[PR_POS_ITER]), prm[PR_SLOP], inv_m,
                  IW, S1, RS1, dx, dth, True, MEAN)
+        if MEAN:
+            end_stop(mf, K, k, inv_m, int(prm[PR_ITER]), S1, RS1)
         if k > k0:  # rows of later rounds were appended: sort them in (K_A, K_B are
             K = kc.sort_by_pair(K, k)  # columns 0 and 1, as in detection's rows)
         OUT, m_out = outputs(K, k, tol)
@@ -2866,7 +2952,8 @@ def run_entry(integ: int, kinds: tuple):
 def _make_run(step_kernel):
     @kernel
     def run_kernel(mf, gf, rb, rp, prm, step0, count, n_steps, steps_per_frame, t_first,
-                   h_prop, bS, bRS, prev_a, prev_b, prev_toi, prev_imp, XC, KIN, KIN_RS,
+                   h_prop, bS, bRS, prev_a, prev_b, prev_toi, prev_imp, prev_rest, XC, KIN,
+                   KIN_RS,
                    wb, wr, wm, kS, base, base_set, set_base, guard, status):
         """Up to `count` stepped steps from step0 on the double buffers bS (2, n, 13) and
         bRS (2, r, 12), starting in buffer 0 at t_first (the later steps at (step0 + s)
@@ -2889,7 +2976,7 @@ def _make_run(step_kernel):
         dt = prm[PR_DT]
         guard_from = kd.param(mf, kd.P_GUARD_FROM)
         per_body = np.empty(n)
-        pa, pb, ptoi, pimp = prev_a, prev_b, prev_toi, prev_imp
+        pa, pb, ptoi, pimp, prest = prev_a, prev_b, prev_toi, prev_imp, prev_rest
         out_good = np.empty((0, O_SIZE))
         out_last = out_good
         m_good, m_last = 0, 0
@@ -2909,7 +2996,7 @@ def _make_run(step_kernel):
             prm[PR_STEP] = st
             prm[PR_T] = t
             prm[PR_H_PROP] = h_prop
-            OUT, m, h_new = step_kernel(mf, gf, rb, rp, prm, S, RS, pa, pb, ptoi, pimp, XC,
+            OUT, m, h_new = step_kernel(mf, gf, rb, rp, prm, S, RS, pa, pb, ptoi, pimp, prest, XC,
                                         KIN, KIN_RS, S1, RS1, wb, wr, wm, kS)
             if h_new < 0.0:
                 status[0] = RUN_UNDERFLOW
@@ -2938,13 +3025,14 @@ def _make_run(step_kernel):
             out_good, m_good, h_good = OUT, m, h_new
             h_prop = h_new
             pa, pb = np.empty(m, np.int64), np.empty(m, np.int64)
-            ptoi, pimp = np.empty(m), np.empty((m, 3))
+            ptoi, pimp, prest = np.empty(m), np.empty((m, 3)), np.empty((m, 3))
             for i in range(m):
                 pa[i] = int(OUT[i, O_A])
                 pb[i] = int(OUT[i, O_B])
                 ptoi[i] = OUT[i, O_TOI]
                 for c in range(3):
                     pimp[i, c] = OUT[i, O_IMP + c]
+                    prest[i, c] = OUT[i, O_REST + c]
             cur = nxt
             status[1] = s + 1
             status[2] = cur

@@ -44,6 +44,9 @@ class State:
     contact_impulse: (len(contacts), 3) N s, world: the impulse collision response gave
         body_b at each contact during this step (body_a got minus it); None without
         response. Also an intermediate result (it warm-starts the next step's solver)
+    contact_rest: (len(contacts), 3) N s, world: the resting part of contact_impulse (the
+        compiled step's, without its impacts); with second-order integrators the next
+        step warm-starts from it. None elsewhere.
     """
 
     step: int
@@ -65,6 +68,7 @@ class State:
     # windowed forces have ended (None: the model's energy at t = 0)
     contacts: object | None = None  # collision.Contacts of this step (stage 2.3)
     contact_impulse: np.ndarray | None = None  # (k, 3) N s on body_b per contact (response)
+    contact_rest: np.ndarray | None = None  # (k, 3) N s: its resting part (compiled step)
 
     def replace(self, **changes) -> "State":
         return dataclasses.replace(self, **changes)

@@ -112,7 +112,7 @@ def tables(model: Model, dynamics) -> dict:
                  RS=np.zeros((r, kd.RS_SIZE)), S1=np.zeros((n, kd.S_SIZE)),
                  RS1=np.zeros((r, kd.RS_SIZE)), animated=animated,
                  no_contacts=(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0),
-                              np.zeros((0, 3))),
+                              np.zeros((0, 3)), np.zeros((0, 3))),
                  no_rows=np.zeros((0, kc.C_SIZE)), no_kin=np.zeros((0, kd.S_SIZE)),
                  no_kin_rs=np.zeros((0, kd.RS_SIZE)))
     model.cache["stepped"] = found
@@ -199,7 +199,9 @@ def step(model: Model, before: State, after: State, dynamics) -> State:
     if c is None or imp is None or not len(c):
         prev = tb["no_contacts"]
     else:
-        prev = (c.body_a, c.body_b, c.toi, imp)
+        rest = before.contact_rest
+        prev = (c.body_a, c.body_b, c.toi, imp, imp if rest is None or len(rest) != len(imp)
+                else rest)
     rows = _python_contacts(model, before, tb) if len(tb["python"]) else tb["no_rows"]
     kin, kin_rs = tb["no_kin"], tb["no_kin_rs"]
     if tb["animated"]:
@@ -226,7 +228,8 @@ def step(model: Model, before: State, after: State, dynamics) -> State:
     new = after.replace(body_pos=S1[:, 0:3].copy(), body_vel=S1[:, 3:6].copy(),
                         body_quat=S1[:, 6:10].copy(), body_angvel=S1[:, 10:13].copy(),
                         ode_step=h_prop, contacts=contacts,
-                        contact_impulse=out[:, ks.O_IMP:ks.O_IMP + 3].copy(), **changes)
+                        contact_impulse=out[:, ks.O_IMP:ks.O_IMP + 3].copy(),
+                        contact_rest=out[:, ks.O_REST:ks.O_REST + 3].copy(), **changes)
     return dynamics._guard_baseline(model, before, new)  # the dynamics stage's rule
 
 
@@ -285,8 +288,12 @@ def run(model: Model, state: State, count: int, dynamics):
     if c is None or imp is None or not len(c):
         prev = tb["no_contacts"]
     else:
+        rest = state.contact_rest
+        if rest is None or len(rest) != len(imp):
+            rest = imp
         prev = (np.ascontiguousarray(c.body_a, np.int64), np.ascontiguousarray(c.body_b,
-                np.int64), np.ascontiguousarray(c.toi, float), np.ascontiguousarray(imp, float))
+                np.int64), np.ascontiguousarray(c.toi, float), np.ascontiguousarray(imp, float),
+                np.ascontiguousarray(rest, float))
     mf = tb["mf"]
     guard = bool(mf[int(mf[kd.H_PARAM]) + kd.P_ENERGY_GUARD] != 0.0)
     set_base = rigid is not None and bool(rigid.energy_guard)
@@ -314,6 +321,7 @@ def run(model: Model, state: State, count: int, dynamics):
                              body_vel=S1[:, 3:6].copy(), body_quat=S1[:, 6:10].copy(),
                              body_angvel=S1[:, 10:13].copy(), ode_step=h, contacts=contacts,
                              contact_impulse=out[:, ks.O_IMP:ks.O_IMP + 3].copy(),
+                             contact_rest=out[:, ks.O_REST:ks.O_REST + 3].copy(),
                              rot_energy0=energy0, **rot)
 
     good = at(cur, done, *got[0:3]) if done else state
