@@ -3,10 +3,11 @@
 Truth: a pile of boxes on a floor, dropped with restitution 0, comes to rest (static
 equilibrium with friction): each body's velocity and spin are then zero. Nothing in a
 resting pile drives motion; a solver that lets a still body report a velocity, or keeps
-one rocking, is wrong however small the pile looks. The theta = 1/2 branch
-(`wip/theta-half`, docs/collision-response.md) made still boxes report an alternating
-4 mm/s for ever and kept a box of 4 rocking at ~1 cm/s for 11 s: this class catches both
-(the rocking was a box lying across another's face with one contact point, at one rim).
+one rocking, is wrong however small the pile looks. The theta = 1/2 step
+(docs/collision-response.md) first made still boxes report an alternating 4 mm/s for
+ever (a held pair's mean slip; now `end_stop`) and kept a box of 4 rocking at ~1 cm/s
+for 11 s (a box lying across another's face with one contact point, at one rim; now
+box_box's face points): this class catches both.
 
 The class: 24 random piles of 3-6 boxes (random sizes 5-15 cm, masses 0.2-2 kg, random
 orientations, dropped 1 cm apart onto each other), friction 0.3-1.0, the integrators

@@ -1,4 +1,4 @@
-# Usage: python probes/pivot_draws.py SEED... (from the repo root): runs tests/test_stepped_pivot.py
+# Usage: python tests/probes/pivot_draws.py SEED... (from the repo root): runs tests/test_stepped_pivot.py
 # on any draws and prints ok or the first gain.
 import sys, math, numpy as np
 sys.path.insert(0, 'tests')

@@ -1,5 +1,5 @@
-# Usage: python probes/energy_scenes.py REPO_ROOT: per-step energy gain and final speed of
-# domino rows and box piles in impacts: stepped (issue 48 (d)); compare main and this branch.
+# Usage: python tests/probes/energy_scenes.py REPO_ROOT: per-step energy gain and final speed of
+# domino rows and box piles in impacts: stepped (issue 48 (d)); compare two checkouts.
 """Per-step energy gain of domino rows and box piles in stepped mode (issue 48 (d))."""
 import sys, math, numpy as np
 sys.path.insert(0, sys.argv[1] + '/tests')
