@@ -2335,37 +2335,30 @@ def end_stop(mf, K, k, inv_m, iterations, S1, RS1):
             V[b, c] = S1[b, kd.S_VEL + c]
             Wd[b, c] = S1[b, kd.S_ANGVEL + c]
     DPc, DLc = np.zeros((n, 3)), np.zeros((n, 3))
-    extra = np.zeros((k, 3))
+    extra = np.zeros((k, 2))  # this pass's friction impulses, on top of the step's
     touched = False
     for _ in range(iterations):
         moved = False
         for i in range(k):
-            if int(K[i, K_MODE]) != IMPULSE or K[i, K_LN] + K[i, K_IN] <= 0.0:
+            # (the normal's analogue, an end approach -v0_n stopped, made 2 of the 16
+            # pivot draws gain energy: the next step's plastic impact stops it instead)
+            if int(K[i, K_MODE]) != IMPULSE or not _sticks(K, i) or \
+                    (K[i, K_V0T] == 0.0 and K[i, K_V0T + 1] == 0.0):
                 continue
-            d0 = 0.0
-            if False and K[i, K_V0N] > 0.0:  # it took the approach -v0_n: a plastic stop at the end
-                vn = rel(K, i, 0, V, Wd)
-                new = max(extra[i, 0] - vn * K[i, K_MN], 0.0)
-                d0 = new - extra[i, 0]
-                apply(K, i, 0, d0, V, Wd)
-                _add_impulse(K, i, 0, d0, DPc, DLc, True)
-                extra[i, 0] = new
-            d1, d2 = 0.0, 0.0
-            if _sticks(K, i) and (K[i, K_V0T] != 0.0 or K[i, K_V0T + 1] != 0.0):
-                l1 = K[i, K_LT] + K[i, K_IT] + extra[i, 1]
-                l2 = K[i, K_LT + 1] + K[i, K_IT + 1] + extra[i, 2]
-                vt1, vt2 = rel(K, i, 1, V, Wd), rel(K, i, 2, V, Wd)
-                s1, s2 = friction(K, i, l1, l2, vt1, vt2,
-                                  K[i, K_MU] * (K[i, K_LN] + K[i, K_IN] + extra[i, 0]))
-                d1, d2 = s1 - l1, s2 - l2
-                apply(K, i, 1, d1, V, Wd)
-                apply(K, i, 2, d2, V, Wd)
-                _add_impulse(K, i, 1, d1, DPc, DLc, True)
-                _add_impulse(K, i, 2, d2, DPc, DLc, True)
-                extra[i, 1] += d1
-                extra[i, 2] += d2
-            if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
-                moved = touched = True
+            l1 = K[i, K_LT] + K[i, K_IT] + extra[i, 0]
+            l2 = K[i, K_LT + 1] + K[i, K_IT + 1] + extra[i, 1]
+            vt1, vt2 = rel(K, i, 1, V, Wd), rel(K, i, 2, V, Wd)
+            s1, s2 = friction(K, i, l1, l2, vt1, vt2, K[i, K_MU] * (K[i, K_LN] + K[i, K_IN]))
+            d1, d2 = s1 - l1, s2 - l2
+            if d1 == 0.0 and d2 == 0.0:
+                continue
+            moved = touched = True
+            apply(K, i, 1, d1, V, Wd)
+            apply(K, i, 2, d2, V, Wd)
+            _add_impulse(K, i, 1, d1, DPc, DLc, True)
+            _add_impulse(K, i, 2, d2, DPc, DLc, True)
+            extra[i, 0] += d1
+            extra[i, 1] += d2
         if not moved:
             break
     if not touched:
