@@ -170,21 +170,20 @@ def test_dzhanibekov_errors_follow_the_integrators_orders():
 
 
 def test_vrsim_stack_row_stands_still():
-    # Ten boxes at rest on the ground for 0.2 s: shock propagation keeps the top box in
-    # place to round-off (measured 1e-14 m over 0.5 s; tests/test_collision_response.py
-    # holds it over 10 s), so 1e-9 m and 1e-9 rad are far inside any real motion.
-    # The stepped row (compiled, 8 iterations): tests/test_stepped.py holds stacks to
-    # 1e-5 m over 10 s; over 0.2 s 1e-6 m.
-    row, stepped = bench.vrsim_stack(0.2, (1 / 60,), 1)
+    # Ten boxes at rest on the ground for 0.2 s: the default (the compiled contact step)
+    # and located impacts both keep the top box in place to round-off (measured ~1e-14 m;
+    # tests/test_pile_rest.py and tests/test_collision_response.py hold such stacks over
+    # seconds), so 1e-9 m and 1e-9 rad are far inside any real motion.
+    row, located = bench.vrsim_stack(0.2, (1 / 60,), 1)
     assert (row.engine, row.bodies, row.steps) == ("vrsim", 10, 12)
     assert row.sanity["drift_m"] < 1e-9 and row.sanity["tilt_rad"] < 1e-9
-    assert row.wall_s > 0 and "1/60 s" in row.setting
-    assert (stepped.bodies, stepped.steps) == (10, 12) and "stepped" in stepped.setting
-    assert stepped.sanity["drift_m"] < 1e-6 and stepped.sanity["tilt_rad"] < 1e-6
-    assert row.simulated_s == stepped.simulated_s == pytest.approx(0.2, rel=1e-12)
-    # coarser steps in stepped mode only (the located default costs ~16 ms a step)
+    assert row.wall_s > 0 and "1/60 s" in row.setting and "defaults" in row.setting
+    assert (located.bodies, located.steps) == (10, 12) and "located" in located.setting
+    assert located.sanity["drift_m"] < 1e-9 and located.sanity["tilt_rad"] < 1e-9
+    assert row.simulated_s == located.simulated_s == pytest.approx(0.2, rel=1e-12)
+    # coarser steps with the default only (located impacts cost ~16 ms a step)
     rows = bench.vrsim_stack(0.2, (1 / 60,), 1, (1 / 10,))
-    assert len(rows) == 3 and "stepped" in rows[2].setting and "1/10 s" in rows[2].setting
+    assert len(rows) == 3 and "defaults" in rows[2].setting and "1/10 s" in rows[2].setting
     assert rows[2].steps == 2 and rows[2].simulated_s == pytest.approx(0.2, rel=1e-12)
 
 

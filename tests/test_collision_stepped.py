@@ -14,7 +14,6 @@ from hypothesis import strategies as st
 
 from vrsim_cli.loop import run
 from vrsim_cli.model.model import compile_model
-from vrsim_cli.model.response import AUTO_LOCATED_BODIES
 from vrsim_cli.model.state import make_state
 from vrsim_cli.scene.spec import parse_scene
 import reference_jacobi as jacobi
@@ -171,12 +170,13 @@ def test_a_box_of_spheres_settles_without_escapes_or_energy_gain():
     assert np.linalg.norm(final.body_vel[dyn], axis=1).max() < 0.05
 
 
-def test_auto_locates_impacts_for_few_bodies_and_steps_them_for_many():
-    few, _ = box_of_spheres(AUTO_LOCATED_BODIES, 0.1, impacts="auto")
-    many, _ = box_of_spheres(AUTO_LOCATED_BODIES + 1, 0.1, impacts="auto")
-    assert compile_model(parse_scene(few)).response.impacts == "located"
-    assert compile_model(parse_scene(many)).response.impacts == "stepped"
-    located, _ = box_of_spheres(AUTO_LOCATED_BODIES + 1, 0.1, impacts="located")
+@pytest.mark.parametrize("n", [1, 8, 32, 33, 64])
+def test_auto_is_the_compiled_step_for_any_number_of_bodies(n):
+    """No cliff: `auto` gives every scene the compiled step (it located impacts up to 32
+    bodies until 2026-12-07); `located` set in the scene is kept."""
+    text, _ = box_of_spheres(n, 0.1, impacts="auto")
+    assert compile_model(parse_scene(text)).response.impacts == "stepped"
+    located, _ = box_of_spheres(n, 0.1, impacts="located")
     assert compile_model(parse_scene(located)).response.impacts == "located"
 
 
@@ -189,14 +189,14 @@ def test_stepped_runs_are_bit_identical():
 
 
 def test_validate_says_which_impacts_a_scene_gets(invoke, tmp_path):
-    many, _ = box_of_spheres(AUTO_LOCATED_BODIES + 1, 0.1, impacts="auto")
+    many, _ = box_of_spheres(33, 0.1, impacts="auto")
     path = tmp_path / "box.yaml"
     path.write_text(many)
     result = invoke("validate", path)
     assert result.exit_code == 0
     assert result.stdout.rstrip().endswith(
-        f"symplectic-euler, stepped impacts (auto: {AUTO_LOCATED_BODIES + 1} dynamic bodies "
-        f"with a shape, more than {AUTO_LOCATED_BODIES}))")
+        "symplectic-euler, stepped impacts (auto: the compiled contact step, for every "
+        "scene))")
     path.write_text(box_of_spheres(3, 0.1, impacts="stepped")[0])
     result = invoke("validate", path)
     assert result.stdout.rstrip().endswith("stepped impacts (set in the scene))")

@@ -138,23 +138,16 @@ def test_a_rolling_body_makes_no_impacts(kind, integrator, dt, eps):
         assert abs(s.body_vel[1, 1]) <= 1e-9, f"v_y = {s.body_vel[1, 1]:.3g} at {s.t}"
 
 
-# Known failures, strict (the mark must go the day one passes): presses too stiff for the
-# step. Resting contact acts at the step's end, so the free flight sinks the pressed
-# corner by (its angular acceleration, up to 1e3 rad/s^2 here) x r dt^2 / 2, and
-# position correction then lifts it from up to 15 cm deep: at 13-50 times the weight
-# and dt >= 1/60 s (or 30-37 times at 10 ms) the box is thrown up (2-3 m) or the run
-# stops on a non-finite state; at 4 times (dopri5, 1/30 s, a 0.11 m tall box) it
-# ends a step 21 mm up; at 3 times (verlet, 10 ms, a 0.12 m wide box) it creeps at
-# 1 cm/s. On 8ad2045 9 of these 15 failed, on dfa9486 10. (Cutting such steps with
-# events where the corner sinks 2 tolerances below its free fall, tried in 8fcfd44,
-# made pressed boxes slide 0.46 m in 1 s at 10 ms instead: reverted.)
-PRESS_KNOWN = {("symplectic-euler", 1 / 30), ("verlet", 0.01), ("rk4", 1 / 60),
-               ("rk4", 1 / 30), ("dopri5", 0.01), ("dopri5", 1 / 60)}
+# Until 2026-12-07 (located impacts, the default then) presses too stiff for the step
+# failed: resting contact acted at the step's end, so the free flight sank the pressed
+# corner by its angular acceleration x r dt^2 / 2 and position correction lifted it out
+# (the box was thrown up 2-3 m, or crept at 1 cm/s); 6 of these 15 were strict xfails.
+# The compiled step solves the contact before the positions move: all 15 hold.
 
 
 @pytest.mark.parametrize("dt", DTS, ids=["10ms", "60Hz", "30Hz"])
 @pytest.mark.parametrize("integrator", INTEGRATORS)
-def test_a_box_pressed_down_over_a_corner_stays_on_the_ground(integrator, dt, request):
+def test_a_box_pressed_down_over_a_corner_stays_on_the_ground(integrator, dt):
     """A box (random size, 0.5-5 kg, mu 0.8) pressed down at a top corner, straight above
     the bottom corner below it, with 2-100 times its weight (a force fixed in the body).
     Truth: the line of action passes through the support, so the box is in equilibrium
@@ -162,11 +155,7 @@ def test_a_box_pressed_down_over_a_corner_stays_on_the_ground(integrator, dt, re
     collision tolerances (resting contacts are kept within one; a pressed corner is
     corrected out of some more; a thrown box rises metres), not tilted by more than those
     3 tolerances over its width, and at rest at the end (<= 1e-6 m/s, rad/s). Presses
-    too stiff for the step fail (PRESS_KNOWN, docs/collision-response.md, Known
-    limits)."""
-    if (integrator, dt) in PRESS_KNOWN:
-        request.applymarker(pytest.mark.xfail(strict=True, reason=(
-            "a press too stiff for the step: see PRESS_KNOWN")))
+    too stiff for the step failed in located mode (above)."""
     index = INTEGRATORS.index(integrator) * 3 + DTS.index(dt)
     rng = np.random.default_rng(3000 + index)
     a, b, c = (float(x) for x in rng.uniform(0.1, 0.6, 3))

@@ -90,7 +90,7 @@ def test_a_box_dropped_flat_rebounds_straight_without_spin(pose, eps, mu, integr
     sqrt(2 d / g) with v = g t_i and leaves at eps v straight up, without turning (the
     four corners are one impact). Checked one step after the impact: v_y = eps v -
     g (t - t_i) (0 for eps = 0: it rests), no horizontal velocity, no spin."""
-    t_i, s = drop_flat(pose, eps, mu, integrator, dt, "{}", 2)
+    t_i, s = drop_flat(pose, eps, mu, integrator, dt, "{impacts: located}", 2)
     v = G * t_i
     expected = eps * v - G * (s.t - t_i) if eps > 0 else 0.0
     assert s.body_vel[1, 1] == pytest.approx(expected, abs=1e-9)
@@ -141,7 +141,7 @@ frame_rate: 100
 dt: {dt}
 integrator: rk4
 gravity: [0, 0, 0]
-collision: {{}}
+collision: {{impacts: located}}
 bodies:
   - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
      material: {{restitution: {eps}, friction: 0}}}}

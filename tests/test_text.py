@@ -145,8 +145,9 @@ def test_sweep_lines_say_wall_times_as_people_do():
     assert line == "[3/24] bounce dt=0.001: ok, 500 steps, 12.3 ms"
 
 
-def test_one_dynamic_body_reads_as_one(invoke, write_scene):
-    """The papercut '1 dynamic bodies' in validate's impact-mode reason."""
+def test_validate_names_the_impact_mode_and_why(invoke, write_scene):
+    """validate's impact-mode reason (it once read '1 dynamic bodies'; since `auto` is
+    the compiled step for every scene it names that)."""
     scene = write_scene("""
         vrsim: 1
         duration: 0.1
@@ -157,7 +158,8 @@ def test_one_dynamic_body_reads_as_one(invoke, write_scene):
         """)
     result = invoke("validate", scene)
     assert result.exit_code == 0, result.output
-    assert "auto: 1 dynamic body with a shape" in result.stdout
+    assert "stepped impacts (auto: the compiled contact step, for every scene)" in \
+        result.stdout
 
 
 def test_real_time_factors_have_two_significant_digits():

@@ -300,12 +300,12 @@ def compile_model(scene: Scene, *, output_override: tuple[Path, str] | None = No
             thin = (name, extent, fall) if fall > 0.0 and shaped >= 2 and \
                 extent < THIN_FALLS * fall + collision.tolerance else None
             response = compile_response(scene, len(names), _vec3(gravity, dim),
-                                        collision.tolerance, problems, thin)
+                                        collision.tolerance, problems)
             if response is not None and response.impacts == "located" and thin is not None:
                 mesh_notes = mesh_notes + (
                     f"{thin_reason(thin)}: located impacts find resting contacts after the "
-                    f"step, and a body resting on it may pass through; impacts: stepped "
-                    f"(what auto picks) or a smaller dt holds such stacks",)
+                    f"step, and a body resting on it may pass through; impacts: auto (the "
+                    f"compiled step) or a smaller dt holds such stacks",)
             if response is not None and rigid is not None and (
                     BODY_KINEMATIC in kinds or _superelastic(response)):
                 # a kinematic body that hits others does work on them, and so would an

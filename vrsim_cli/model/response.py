@@ -21,7 +21,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from vrsim_cli.maths.products import norm
-from vrsim_cli.text import plural
 
 NONE, STOP, SLIDE, IMPULSE = range(4)
 MODES = ("none", "stop", "slide", "impulse")
@@ -36,14 +35,14 @@ DEFAULT_SLOP = 0.0  # m: penetration left by position correction
 # than Gauss-Seidel for the same residual; warm starting carries the rest across steps.
 STEPPED_ITERATIONS = 8
 STEPPED_POSITION_ITERATIONS = 16  # a 4-layer pile then rests within 2.5 % of r
-# `impacts: auto` locates every impact in time up to this many dynamic bodies with a
-# shape (emitted particles included); beyond, impacts are stepped (located events would cut each step once per impact).
-AUTO_LOCATED_BODIES = 32
-# ... unless a dynamic body is thinner than THIN_FALLS times the fall of a resting body in
-# one free-flight step (share |g| dt^2) plus the tolerance: located mode detects resting
-# contacts at the end of the free flight, and a 2 mm plate under another at dt 1/60 s
-# (2.7 mm of fall) is passed through (three stacked plates sank 1.3 mm into the ground;
-# coins slid off each other); stepped mode's speculative contacts hold them.
+# `impacts: auto` is the compiled contact step (`stepped`) for every scene: impulses
+# before positions, one numba call per step. Located impacts (each impact found in time,
+# the interpreted solver) run only where the scene sets `impacts: located`, until issue
+# 49 brings them into the compiled step. A located scene with a dynamic body thinner than
+# THIN_FALLS times the fall of a resting body in one free-flight step (share |g| dt^2)
+# plus the tolerance is told so (`model.compile_model`'s notes): located mode detects
+# resting contacts at the end of the free flight, and a 2 mm plate under another at dt
+# 1/60 s (2.7 mm of fall) is passed through; stepped mode's speculative contacts hold it.
 THIN_FALLS = 2.0
 
 
@@ -102,12 +101,9 @@ def thin_reason(thin: tuple) -> str:
             f"{fall * 1e3:.3g} mm a resting body falls in one step plus the tolerance")
 
 
-def compile_response(scene, n_body: int, gravity, tolerance: float, problems: list,
-                     thin: tuple | None = None) -> ResponseModel | None:
-    """The scene's response, or None when no pair can respond (all `none`). thin: (body
-    name, its thinnest extent m, the fall m of a resting body in one free-flight step)
-    when a dynamic body is thinner than twice that fall plus the tolerance (THIN_FALLS)
-    and another dynamic body with a shape may rest on it."""
+def compile_response(scene, n_body: int, gravity, tolerance: float,
+                     problems: list) -> ResponseModel | None:
+    """The scene's response, or None when no pair can respond (all `none`)."""
     data = scene.data
     top = data.get("collision") or {}
     default_mode = MODES.index(top.get("response", "impulse"))
@@ -149,16 +145,8 @@ def compile_response(scene, n_body: int, gravity, tolerance: float, problems: li
     impacts = top.get("impacts", "auto")
     why = "set in the scene"
     if impacts == "auto":
-        shaped = sum(1 for b in bodies if b.get("shape") is not None
-                     and b.get("type", "dynamic") == "dynamic") + \
-            sum(int(e.get("count", 0)) for e in data.get("emitters") or [])  # spheres too
-        impacts = "located" if shaped <= AUTO_LOCATED_BODIES else "stepped"
-        why = (f"auto: {plural(shaped, 'dynamic body', 'dynamic bodies')} with a shape, "
-               f"{'at most' if impacts == 'located' else 'more than'} {AUTO_LOCATED_BODIES}")
-        if impacts == "located" and thin is not None:
-            impacts = "stepped"
-            why = (f"auto: {thin_reason(thin)}: located mode finds resting contacts after "
-                   f"the step, when a body on a thin one may be through it")
+        impacts = "stepped"
+        why = "auto: the compiled contact step, for every scene"
     stepped = impacts == "stepped"
     return ResponseModel(
         body_mode=mode, body_restitution=eps, body_friction=mu,

@@ -306,15 +306,15 @@ def _vrsim_bounce(quick, repeats):
 
 
 def vrsim_bounce(dts, repeats, integrators=BOUNCE["integrators"]):
-    """scenarios/bounce.yaml's physics (collision defaults: located impacts, rest_speed
-    0.14 m/s). Apexes from the per-step states (a second, untimed run: the timed one
-    calls nothing per step); impact times are the located ones (contacts' toi)."""
+    """scenarios/bounce.yaml's physics (located impacts, as the scenario sets them;
+    rest_speed 0.14 m/s). Apexes from the per-step states (a second, untimed run: the
+    timed one calls nothing per step); impact times are the located ones (contacts' toi)."""
     b = BOUNCE
     points = []
     for integrator in integrators:
         for dt in dts:
             model = _model("bounce", b["duration"], dt, integrator, (0, -b["g"], 0), f"""
-collision: {{}}
+collision: {{impacts: located}}
 bodies:
   - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}}}}
   - {{name: ball, mass: {b['mass']}, position: [0, {b['h0'] + b['radius']}, 0],
@@ -475,9 +475,10 @@ def _vrsim_stack(quick, repeats):
 
 
 def vrsim_stack(duration, dts, repeats, coarse_dts=()):
-    """vrsim's defaults for resting contact (4 velocity iterations, 2 position passes,
-    shock propagation, friction 0.5), verlet as in scenarios/stack.yaml; the compiled
-    stepped mode also at `coarse_dts` (the located default costs ~16 ms a step here)."""
+    """vrsim's defaults for resting contact (the compiled contact step: 8 velocity
+    iterations, islands of few contacts to convergence, shock levels, friction 0.5),
+    verlet as in scenarios/stack.yaml, also at `coarse_dts`; and the interpreted located
+    impacts (`impacts: located`: ~16 ms a step here) at `dts`."""
     from vrsim_cli.maths.spatial import quat_to_matrix
 
     s = STACK
@@ -486,13 +487,14 @@ def vrsim_stack(duration, dts, repeats, coarse_dts=()):
         f"shape: {{type: box, size: [{s['size']}, {s['size']}, {s['size']}]}}}}"
         for i in range(s["boxes"]))
     rows = []
-    # the default (located impacts: 10 bodies) and the compiled stepped step (`auto`
-    # picks it above 32 bodies): 8 iterations, shock propagation, one numba call per step
-    settings = (("{}", "defaults (4 iterations, shock propagation)"),
-                ("{impacts: stepped}", "stepped impacts (compiled, 8 iterations, shock "
+    # the default (the compiled contact step, one numba call per step) and located
+    # impacts (interpreted: 4 iterations, shock propagation)
+    settings = (("{}", "defaults (stepped: the compiled contact step, 8 iterations, "
+                       "shock levels)"),
+                ("{impacts: located}", "located impacts (interpreted, 4 iterations, shock "
                                        "propagation)"))
     plan = [(c, dt) for c in settings for dt in dts] + \
-        [(settings[1], dt) for dt in coarse_dts]
+        [(settings[0], dt) for dt in coarse_dts]
     for (collision, label), dt in plan:
         model = _model("stack", duration, dt, "verlet", (0, -s["g"], 0), f"""
 collision: {collision}

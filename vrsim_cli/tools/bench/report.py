@@ -283,7 +283,8 @@ def stack_markdown(problem: Problem, rows: list[Row]) -> list[str]:
     lines += [f"Wall time per simulated second at a drift at least {FRONTIER_FACTOR:g} x "
               "smaller: each peer setting against vrsim's cheapest setting that drifts "
               f"at most 1/{FRONTIER_FACTOR:g} as much (vrsim / engine <= 1: vrsim is as "
-              "fast or faster); and vrsim's stepped mode at the same step, per step:", "",
+              "fast or faster); and vrsim's compiled (stepped) step at the same step, per "
+              "step:", "",
               "| engine | dt | drift (m) | ms per simulated s | vrsim's cheapest within "
               f"1/{FRONTIER_FACTOR:g} the drift | its drift (m) | its ms per simulated s | vrsim / engine | "
               "same dt: vrsim / engine per step |", "|---|---|---|---|---|---|---|---|---|"]
