@@ -1,5 +1,6 @@
 """What stepped impacts give on the ordinary scenes of issue 15 (item 5: stepped mode stays
-within its documented error, docs/collision-response.md "Many bodies: stepped impacts").
+within its documented error, docs/collision-response.md "The default mode's error on
+the event-exact cases").
 
 The located tests' random cases (tests/test_incline.py, tests/test_simultaneous_impacts.py)
 run here with `collision: {impacts: stepped}`. Stepped mode takes impacts at the step's

@@ -1,7 +1,7 @@
 """Stepped impacts, compiled: one whole step of many colliding bodies in one call.
 
-`collision.impacts: stepped` (docs/collision-response.md, "Stepped impacts"). From the
-state S at the step's start, one call of `entry(...)` does:
+`collision.impacts: auto` (docs/collision-response.md, "The default: one compiled step").
+From the state S at the step's start, one call of `entry(...)` does:
 
 1. the kick: the velocities v* = v0 + dt a after the step's forces (kernels.dynamics);
 2. speculative detection (`kernels.collide`): every pair whose gap is within what the

@@ -1,6 +1,6 @@
 """Loop stage 2.1 + 2.3 with `collision.impacts: stepped`: a whole step of many colliding
 bodies (speculative contacts, impacts, rest, integration, position pass) in one compiled
-call, `kernels.stepped` (docs/collision-response.md, "Stepped impacts").
+call, `kernels.stepped` (docs/collision-response.md, "The default: one compiled step").
 
 This module is the thin Python side: it packs the geometry and the materials once per
 model (`tables`), turns a state into kernel rows and back, and asks Python only for the
