@@ -1,5 +1,5 @@
-"""A box held by friction on an incline stays put (issue 15, item 3), in the default
-located mode.
+"""A box held by friction on an incline stays put (issue 15, item 3), in the default mode
+(the compiled step since 2026-12-07; located impacts before).
 
 Before, the free flight moved the box down the slope by g sin(th) dt^2 / 2 every step
 before the resting impulses set its velocity to zero: a box on a 25 degree incline with

@@ -13,9 +13,8 @@ The class: 24 random piles of 3-6 boxes (random sizes 5-15 cm, masses 0.2-2 kg, 
 orientations, dropped 1 cm apart onto each other), friction 0.3-1.0, the integrators
 that move positions differently in contact (symplectic-euler, verlet, rk4) at dt 1/60,
 1/120 and 1/240 s; and a pile of 20 boxes (the issue's pile) with each of the three.
-All in the compiled step (`impacts: stepped`), the step issue 48 makes the default (the
-default `auto` still sends piles of <= 32 bodies to the interpreted located solver, ~20
-times slower here).
+All in the compiled step (`impacts: stepped`, the default since 2026-12-07; located
+impacts are ~20 times slower here).
 
 Tolerance: the fastest point of any body, |v| + |w| r (r the body's half diagonal),
 at most 1e-9 m/s over the last 0.5 s of 6 s (8 s for 20 boxes). Velocities of a body at

@@ -1,5 +1,6 @@
 """A solid ball on a plane with Coulomb friction, against the closed forms (issue 15,
-item 3), in the default located mode.
+item 3), in the default mode (the compiled step since 2026-12-07; located impacts
+before).
 
 Truth (solid sphere, I = 2/5 m r^2, point contact, normal force N = m g cos(th)): the
 velocity of the contact point, the slip u = v + w x (-r n), obeys while u != 0
