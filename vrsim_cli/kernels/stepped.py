@@ -1392,6 +1392,24 @@ def _rest_row(K, i, dt, U, Wv):
     return max(abs(d0), abs(d1), abs(d2))
 
 
+@kernel(inline="always")
+def _sliding_row(K, i, dt, U, Wv, e1, e2):
+    """`_rest_row` with the friction held at sliding along the fixed direction -e (unit,
+    in t1, t2): mu times the normal impulse, whatever the slip does."""
+    target = _target(K, i, dt)
+    vn = rel3(K, i, U, Wv)[0]
+    new = max(K[i, K_LN] + (target - vn) * K[i, K_MN], 0.0)
+    d0 = new - K[i, K_LN]
+    apply(K, i, 0, d0, U, Wv)
+    K[i, K_LN] = new
+    s1, s2 = -K[i, K_MU] * new * e1, -K[i, K_MU] * new * e2
+    d1, d2 = s1 - K[i, K_LT], s2 - K[i, K_LT + 1]
+    apply(K, i, 1, d1, U, Wv)
+    apply(K, i, 2, d2, U, Wv)
+    K[i, K_LT], K[i, K_LT + 1] = s1, s2
+    return max(abs(d0), abs(d1), abs(d2))
+
+
 @kernel
 def rest(K, k, dt, iterations, U, Wv, until_fixed):
     """Sequential impulses on the kicked velocities: per contact the normal towards
@@ -1484,6 +1502,17 @@ def rest_small_islands(K, k, dt, inv_m, U, Wv):
             any_live = True
     if not any_live:
         return
+    sweep_islands(K, k, dt, U, Wv, island, live, np.zeros(k, np.bool_), np.zeros((k, 2)))
+
+
+@kernel
+def sweep_islands(K, k, dt, U, Wv, island, live, fixed, e):
+    """Gauss-Seidel sweeps of the contacts of the islands marked `live` (n,) (`island`
+    (k,): each contact's), each island until a sweep changes none of its impulses by
+    more than REST_SETTLED of its largest, at most SMALL_ISLAND_SWEEPS times. `fixed`
+    (k,) contacts slide: their friction is held at mu N along -e (k, 2) (`slip_stops`).
+    `live` is consumed."""
+    n = live.shape[0]
     change, size = np.zeros(n), np.zeros(n)
     for _ in range(SMALL_ISLAND_SWEEPS):
         for b in range(n):
@@ -1493,7 +1522,11 @@ def rest_small_islands(K, k, dt, inv_m, U, Wv):
             g = island[i]
             if g < 0 or not live[g] or int(K[i, K_MODE]) != IMPULSE:
                 continue
-            change[g] = max(change[g], _rest_row(K, i, dt, U, Wv))
+            if fixed[i]:
+                d = _sliding_row(K, i, dt, U, Wv, e[i, 0], e[i, 1])
+            else:
+                d = _rest_row(K, i, dt, U, Wv)
+            change[g] = max(change[g], d)
             size[g] = max(size[g], abs(K[i, K_LN]), abs(K[i, K_LT]), abs(K[i, K_LT + 1]))
         any_live = False
         for b in range(n):
@@ -2296,7 +2329,16 @@ def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, d
                     dth[a, c] -= wa[c]
         if until_fixed and not moved:  # a sweep that changed nothing: every later one
             break  # would repeat it exactly (the same bits as the full count)
-    for b in range(n):
+    move_and_turn(mf, dx, dth, True, S1, RS1)
+
+
+@kernel
+def move_and_turn(mf, dx, dth, turn_L, S1, RS1):
+    """Bodies moved by dx and turned by exp(dth) (n, 3 each; world), no velocity change
+    meant: `turn_L` turns the angular momentum with the body (its body-frame value and
+    so the kinetic energy kept: the position pass), else the world angular momentum is
+    kept (as the impulses left it: a ball's spin, and so its rolling, stay as solved)."""
+    for b in range(S1.shape[0]):
         for c in range(3):
             S1[b, kd.S_POS + c] += dx[b, c]
     for kk in range(RS1.shape[0]):
@@ -2307,7 +2349,9 @@ def push_out(mf, K, k, order, level, iterations, slop, inv_m, IW, S1, RS1, dx, d
             continue
         E = la.exp_so3(th)
         R = la.matmul(E, kd.row9(RS1, kk, kd.RS_R))
-        L = la.matvec(E, kd.row3(RS1, kk, kd.RS_L))
+        L = kd.row3(RS1, kk, kd.RS_L)
+        if turn_L:
+            L = la.matvec(E, L)
         kd.put9(RS1, kk, kd.RS_R, R)
         kd.put3(RS1, kk, kd.RS_L, L)
         kd.put4(S1, b, kd.S_QUAT, la.quat_from_matrix(R))
@@ -2332,24 +2376,6 @@ def _slides_to_stop(K, i, v0, dt):
         return False
     lt1, lt2 = K[i, K_LT], K[i, K_LT + 1]
     return math.sqrt(lt1 * lt1 + lt2 * lt2) < STICK_MARGIN * K[i, K_MU] * K[i, K_LN]
-
-
-@kernel(inline="always")
-def _sliding_row(K, i, dt, U, Wv, e1, e2):
-    """`_rest_row` with the friction held at sliding along the fixed direction -e (unit,
-    in t1, t2): mu times the normal impulse, whatever the slip does."""
-    target = _target(K, i, dt)
-    vn = rel3(K, i, U, Wv)[0]
-    new = max(K[i, K_LN] + (target - vn) * K[i, K_MN], 0.0)
-    d0 = new - K[i, K_LN]
-    apply(K, i, 0, d0, U, Wv)
-    K[i, K_LN] = new
-    s1, s2 = -K[i, K_MU] * new * e1, -K[i, K_MU] * new * e2
-    d1, d2 = s1 - K[i, K_LT], s2 - K[i, K_LT + 1]
-    apply(K, i, 1, d1, U, Wv)
-    apply(K, i, 2, d2, U, Wv)
-    K[i, K_LT], K[i, K_LT + 1] = s1, s2
-    return max(abs(d0), abs(d1), abs(d2))
 
 
 @kernel
@@ -2391,31 +2417,7 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
             stops[i] = True
             live[g] = True
     Ks, Us, Ws = K.copy(), U.copy(), Wv.copy()
-    todo = live.copy()
-    change, size = np.zeros(n), np.zeros(n)
-    for _ in range(SMALL_ISLAND_SWEEPS):
-        for b in range(n):
-            change[b] = 0.0
-            size[b] = 0.0
-        for i in range(k):
-            g = island[i]
-            if g < 0 or not todo[g] or int(Ks[i, K_MODE]) != IMPULSE:
-                continue
-            if stops[i]:
-                d = _sliding_row(Ks, i, dt, Us, Ws, e[i, 0], e[i, 1])
-            else:
-                d = _rest_row(Ks, i, dt, Us, Ws)
-            change[g] = max(change[g], d)
-            size[g] = max(size[g], abs(Ks[i, K_LN]), abs(Ks[i, K_LT]), abs(Ks[i, K_LT + 1]))
-        more = False
-        for b in range(n):
-            if todo[b]:
-                if change[b] <= REST_SETTLED * size[b]:
-                    todo[b] = False
-                else:
-                    more = True
-        if not more:
-            break
+    sweep_islands(Ks, k, dt, Us, Ws, island, live, stops, e)
     tau_w, w_sum = np.zeros(n), np.zeros(n)
     for i in range(k):
         if not stops[i]:
@@ -2444,23 +2446,8 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
                 dx[body, c] = half * (Us[body, c] - U[body, c])
                 dth[body, c] = half * (Ws[body, c] - Wv[body, c])
             moved_any = True
-    if not moved_any:
-        return
-    for b in range(n):
-        for c in range(3):
-            S1[b, kd.S_POS + c] += dx[b, c]
-    for kk in range(RS1.shape[0]):
-        j = kd.at(mf, kd.H_ROT, kk, kd.RT_SIZE)
-        b = int(mf[j + kd.RT_INDEX])
-        th = kd.row3(dth, b, 0)
-        if th[0] == 0.0 and th[1] == 0.0 and th[2] == 0.0:
-            continue
-        # turned, with its angular momentum (world) as the impulses left it: a ball's
-        # spin, and so its rolling, stay as solved
-        R = la.matmul(la.exp_so3(th), kd.row9(RS1, kk, kd.RS_R))
-        kd.put9(RS1, kk, kd.RS_R, R)
-        kd.put4(S1, b, kd.S_QUAT, la.quat_from_matrix(R))
-        kd.put3(S1, b, kd.S_ANGVEL, kd.world_omega(mf, kk, R, kd.row3(RS1, kk, kd.RS_L)))
+    if moved_any:
+        move_and_turn(mf, dx, dth, False, S1, RS1)
 
 
 @kernel
