@@ -1372,42 +1372,48 @@ def _target(K, i, dt):
 
 
 @kernel(inline="always")
-def _rest_row(K, i, dt, U, Wv):
-    """One Gauss-Seidel update of resting contact i (`rest`); returns the largest change
-    of its three impulses, N s."""
+def _normal_row(K, i, dt, U, Wv):
+    """The normal part of a Gauss-Seidel update of resting contact i: towards its target
+    (`_target`), clamped >= 0. Returns (the new normal impulse, its change), N s."""
     target = _target(K, i, dt)
     vn = rel3(K, i, U, Wv)[0]
     new = max(K[i, K_LN] + (target - vn) * K[i, K_MN], 0.0)
     d0 = new - K[i, K_LN]
     apply(K, i, 0, d0, U, Wv)
     K[i, K_LN] = new
-    _, vt1, vt2 = rel3(K, i, U, Wv)
-    vt1 += K[i, K_V0T]
-    vt2 += K[i, K_V0T + 1]
-    s1, s2 = friction(K, i, K[i, K_LT], K[i, K_LT + 1], vt1, vt2, K[i, K_MU] * new)
+    return new, d0
+
+
+@kernel(inline="always")
+def _set_friction(K, i, s1, s2, U, Wv):
+    """Contact i's tangent impulses set to (s1, s2); returns the larger change, N s."""
     d1, d2 = s1 - K[i, K_LT], s2 - K[i, K_LT + 1]
     apply(K, i, 1, d1, U, Wv)
     apply(K, i, 2, d2, U, Wv)
     K[i, K_LT], K[i, K_LT + 1] = s1, s2
-    return max(abs(d0), abs(d1), abs(d2))
+    return max(abs(d1), abs(d2))
+
+
+@kernel(inline="always")
+def _rest_row(K, i, dt, U, Wv):
+    """One Gauss-Seidel update of resting contact i (`rest`): the normal, then friction
+    in the Coulomb disc of the new normal impulse; returns the largest change of its
+    three impulses, N s."""
+    new, d0 = _normal_row(K, i, dt, U, Wv)
+    _, vt1, vt2 = rel3(K, i, U, Wv)
+    vt1 += K[i, K_V0T]
+    vt2 += K[i, K_V0T + 1]
+    s1, s2 = friction(K, i, K[i, K_LT], K[i, K_LT + 1], vt1, vt2, K[i, K_MU] * new)
+    return max(abs(d0), _set_friction(K, i, s1, s2, U, Wv))
 
 
 @kernel(inline="always")
 def _sliding_row(K, i, dt, U, Wv, e1, e2):
     """`_rest_row` with the friction held at sliding along the fixed direction -e (unit,
     in t1, t2): mu times the normal impulse, whatever the slip does."""
-    target = _target(K, i, dt)
-    vn = rel3(K, i, U, Wv)[0]
-    new = max(K[i, K_LN] + (target - vn) * K[i, K_MN], 0.0)
-    d0 = new - K[i, K_LN]
-    apply(K, i, 0, d0, U, Wv)
-    K[i, K_LN] = new
-    s1, s2 = -K[i, K_MU] * new * e1, -K[i, K_MU] * new * e2
-    d1, d2 = s1 - K[i, K_LT], s2 - K[i, K_LT + 1]
-    apply(K, i, 1, d1, U, Wv)
-    apply(K, i, 2, d2, U, Wv)
-    K[i, K_LT], K[i, K_LT + 1] = s1, s2
-    return max(abs(d0), abs(d1), abs(d2))
+    new, d0 = _normal_row(K, i, dt, U, Wv)
+    return max(abs(d0), _set_friction(K, i, -K[i, K_MU] * new * e1, -K[i, K_MU] * new * e2,
+                                      U, Wv))
 
 
 @kernel
