@@ -2365,12 +2365,18 @@ def move_and_turn(mf, dx, dth, turn_L, S1, RS1):
 
 
 @kernel(inline="always")
-def _slides_to_stop(K, i, v0, dt):
-    """Whether contact i slid at the step's start and the rest found it sticking at the
-    end: its slip stopped within the step (a resting contact with friction inside the
-    cone, no impact, not held stuck from the last step). A stop moves the contact point
-    by less than dt |u0| / 2 against the one-ramp path (the slip falls from |u0| to 0
-    either way), so a start slip for which that is below the position round-off
+def _slides_to_stop(K, i, v0, dt, U, Wv):
+    """Whether contact i slid at the step's start and is stuck at its end: its slip
+    stopped within the step (a resting contact, no impact, not held stuck from the last
+    step). Stuck is kinematic, the end slip gone to the round-off of the start slip
+    (1 - STICK_MARGIN of it), or friction inside the cone: a face's corner loads are
+    indeterminate, and a solve that stopped a box put the friction of two of its four
+    corners on the cone's edge, where taken as sliding they hid the stop (its positions
+    then overshot by the uncorrected dt (1 - tau) |u0| / 2). Near that bound either
+    answer is right: a slip that ends there stopped at tau ~ 1, and the correction is
+    ~ (1 - tau). A stop moves the contact point by less than dt |u0| / 2 against the
+    one-ramp path (the slip falls from |u0| to 0 either way), so a start slip for which
+    that is below the position round-off
     (POS_ROUNDOFF of its arms) is round-off too: its direction is noise (a resting stack's
     1e-18 m/s slips jumped it 2e-7 m when taken as stops)."""
     if i >= v0.shape[0] or int(K[i, K_MODE]) != IMPULSE or K[i, K_LN] <= 0.0:
@@ -2378,8 +2384,12 @@ def _slides_to_stop(K, i, v0, dt):
     if K[i, K_IN] != 0.0 or K[i, K_IT] != 0.0 or K[i, K_IT + 1] != 0.0 or \
             K[i, K_LK] != 0.0 or K[i, K_V0T] != 0.0 or K[i, K_V0T + 1] != 0.0:
         return False
-    if 0.5 * dt * math.sqrt(v0[i, 1] * v0[i, 1] + v0[i, 2] * v0[i, 2]) <= _pos_roundoff(K, i):
+    u0 = math.sqrt(v0[i, 1] * v0[i, 1] + v0[i, 2] * v0[i, 2])
+    if 0.5 * dt * u0 <= _pos_roundoff(K, i):
         return False
+    _, s1, s2 = rel3(K, i, U, Wv)
+    if math.sqrt(s1 * s1 + s2 * s2) <= (1.0 - STICK_MARGIN) * u0:
+        return True
     lt1, lt2 = K[i, K_LT], K[i, K_LT + 1]
     return math.sqrt(lt1 * lt1 + lt2 * lt2) < STICK_MARGIN * K[i, K_MU] * K[i, K_LN]
 
@@ -2395,10 +2405,9 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
     held at mu N against the start slip, the normals solved anew), and tau the fraction
     at which that sliding solution's slip passes zero: tau = |u0| / (|u0| - u_s.e), e the
     start slip's direction. (The piecewise-constant forces integrate exactly: a ball
-    thrown on the ground or an incline, to 1e-13 m, was up to 1e-4 m off a stop. Not yet
-    a box or a cylinder on its face: the re-solve's corner loads are indeterminate and
-    may give it a turn about the normal, or the guard below skips it; an independent
-    review found 12 of 80 such stops 1e-7 to 2e-4 of the distance off.)
+    thrown on the ground or an incline, to 1e-13 m, was up to 1e-4 m off a stop; a box
+    or a cylinder stopping on its face to 1e-13 of the distance, since stuck is read
+    from the end slip: `_slides_to_stop`.)
     For islands of one moving body, solved to convergence (SMALL_ISLAND_ROWS), where v1
     is the rest's fixed point; the re-solve is a copy (K, U, Wv are not changed). One tau
     per island: the mean of its stopping contacts', weighted by their friction limits
@@ -2408,7 +2417,7 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
         return
     any_stop = False
     for i in range(min(k, v0.shape[0])):
-        if _slides_to_stop(K, i, v0, dt):
+        if _slides_to_stop(K, i, v0, dt, U, Wv):
             any_stop = True
             break
     if not any_stop:
@@ -2433,7 +2442,7 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
     for i in range(k):
         g = island[i]
         if g >= 0 and member[g] >= 0 and rows[g] <= SMALL_ISLAND_ROWS and \
-                _slides_to_stop(K, i, v0, dt):
+                _slides_to_stop(K, i, v0, dt, U, Wv):
             u = math.sqrt(v0[i, 1] * v0[i, 1] + v0[i, 2] * v0[i, 2])
             e[i, 0], e[i, 1] = v0[i, 1] / u, v0[i, 2] / u
             stops[i] = True
