@@ -1,0 +1,53 @@
+# Usage: python tests/probes/sphere_pyramids.py REPO_ROOT: pyramids of 5, 14 and 30 spheres
+# that statics can hold (tests/test_sphere_pyramids.py's oracle), in the default compiled
+# step: how far they move in 3 s and how fast they end (issue 48 (d): "bodies at rest in a
+# pile report zero velocity"). Measured 2026-12-07 on 61689d1: 5 spheres hold to 1e-15 m
+# (one small island, solved to convergence); 14 spheres creep 5e-6..2e-5 m at 1e-6 m/s
+# (mu 1.0, 1.5) and collapse at mu 0.6 (statics needs 0.537); 30 spheres creep 1e-3 m at
+# 1 cm/s with mu 1.5. With SMALL_ISLAND_ROWS at 400 the 14- and 30-sphere pyramids hold
+# to 2.5e-10 m, but 30 spheres with mu 0.8 (statics: 0.613) still collapse.
+"""Sphere pyramids against statics, in the compiled contact step (issue 48 (d))."""
+import sys
+
+import numpy as np
+
+sys.path.insert(0, sys.argv[1] + "/tests")
+from conftest import simulate  # noqa: E402
+from test_sphere_pyramids import centres, holds  # noqa: E402
+
+
+def least_mu(layers: int) -> float:
+    lo, hi = 0.0, 3.0
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if holds(0.1, 1.0, mid, layers=layers) else (mid, hi)
+    return hi
+
+
+for layers in (2, 3, 4):
+    need = least_mu(layers)
+    for mu, integrator, dt in ((1.2 * need, "verlet", 1 / 60), (2.0 * need, "rk4", 1 / 120),
+                               (3.0 * need, "symplectic-euler", 1 / 60)):
+        r, m = 0.1, 1.0
+        c = centres(r, layers)
+        bodies = "\n".join(
+            f"  - {{name: s{k}, mass: {m}, position: {[float(x) for x in p]}, shape: "
+            f"{{type: sphere, radius: {r}}}, material: {{friction: {mu!r}, restitution: 0}}}}"
+            for k, p in enumerate(c))
+        _, states, final = simulate(f"""vrsim: 1
+duration: 3.0
+frame_rate: 30
+dt: {dt!r}
+integrator: {integrator}
+gravity: [0, -9.81, 0]
+collision: {{}}
+bodies:
+  - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
+     material: {{friction: {mu!r}, restitution: 0}}}}
+{bodies}
+""")
+        moved = max(float(np.abs(s.body_pos[1:] - c).max()) for s in states)
+        speed = float(np.abs(final.body_vel[1:]).max())
+        print(f"{len(c):2d} spheres, statics needs mu {need:.3f}, mu {mu:.3f} {integrator} "
+              f"dt 1/{round(1 / dt)}: moved {moved:.2e} m, final speed {speed:.2e} m/s",
+              flush=True)
