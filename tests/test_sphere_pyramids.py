@@ -88,6 +88,29 @@ def holds(r: float, m: float, mu: float, sides: int = 16, layers: int = 2) -> bo
     return res.status == 0
 
 
+def run_pyramid(r, m, mu, dt, integrator, layers, duration):
+    """The states (30 a second) and the final state of the pyramid `centres(r, layers)`
+    on the ground, every sphere and the ground with friction mu, in the default mode."""
+    bodies = "\n".join(
+        f"  - {{name: s{k}, mass: {m!r}, position: {[float(x) for x in p]}, "
+        f"shape: {{type: sphere, radius: {r!r}}}, material: {{friction: {mu!r}, "
+        f"restitution: 0}}}}" for k, p in enumerate(centres(r, layers)))
+    _, states, final = simulate(f"""
+vrsim: 1
+duration: {duration!r}
+frame_rate: 30
+dt: {dt!r}
+integrator: {integrator}
+gravity: [0, -9.81, 0]
+collision: {{}}
+bodies:
+  - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
+     material: {{friction: {mu!r}, restitution: 0}}}}
+{bodies}
+""")
+    return states, final
+
+
 def test_the_statics_oracle_on_its_own_terms():
     """One sphere on the ground holds without friction; the pyramid needs some and its
     least mu is the same for every size and mass (statics scales)."""
@@ -111,23 +134,7 @@ def test_a_sphere_pyramid_rests_exactly_when_statics_holds_it(seed):
         if held or not holds(r, m, mu * 1.2):
             break
     c = centres(r)
-    bodies = "\n".join(
-        f"  - {{name: s{k}, mass: {m!r}, position: {[float(x) for x in p]}, "
-        f"shape: {{type: sphere, radius: {r!r}}}, material: {{friction: {mu!r}, "
-        f"restitution: 0}}}}" for k, p in enumerate(c))
-    _, states, final = simulate(f"""
-vrsim: 1
-duration: 2.0
-frame_rate: 30
-dt: {dt!r}
-integrator: {integrator}
-gravity: [0, -9.81, 0]
-collision: {{}}
-bodies:
-  - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
-     material: {{friction: {mu!r}, restitution: 0}}}}
-{bodies}
-""")
+    states, final = run_pyramid(r, m, mu, dt, integrator, 2, 2.0)
     case = (r, m, mu, dt, integrator, held)
     if held:
         moved = max(float(np.abs(s.body_pos[1:] - c).max()) for s in states)

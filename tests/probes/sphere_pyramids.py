@@ -12,8 +12,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, sys.argv[1] + "/tests")
-from conftest import simulate  # noqa: E402
-from test_sphere_pyramids import centres, holds  # noqa: E402
+from test_sphere_pyramids import centres, holds, run_pyramid  # noqa: E402
 
 
 def least_mu(layers: int) -> float:
@@ -30,22 +29,7 @@ for layers in (2, 3, 4):
                                (3.0 * need, "symplectic-euler", 1 / 60)):
         r, m = 0.1, 1.0
         c = centres(r, layers)
-        bodies = "\n".join(
-            f"  - {{name: s{k}, mass: {m}, position: {[float(x) for x in p]}, shape: "
-            f"{{type: sphere, radius: {r}}}, material: {{friction: {mu!r}, restitution: 0}}}}"
-            for k, p in enumerate(c))
-        _, states, final = simulate(f"""vrsim: 1
-duration: 3.0
-frame_rate: 30
-dt: {dt!r}
-integrator: {integrator}
-gravity: [0, -9.81, 0]
-collision: {{}}
-bodies:
-  - {{name: ground, type: static, shape: {{type: plane, normal: [0, 1, 0]}},
-     material: {{friction: {mu!r}, restitution: 0}}}}
-{bodies}
-""")
+        states, final = run_pyramid(r, m, mu, dt, integrator, layers, 3.0)
         moved = max(float(np.abs(s.body_pos[1:] - c).max()) for s in states)
         speed = float(np.abs(final.body_vel[1:]).max())
         print(f"{len(c):2d} spheres, statics needs mu {need:.3f}, mu {mu:.3f} {integrator} "
