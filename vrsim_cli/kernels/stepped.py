@@ -1512,6 +1512,42 @@ def rest_small_islands(K, k, dt, inv_m, U, Wv):
 
 
 @kernel
+def unsettled_islands(K, k, dt, inv_m, U, Wv, island, live):
+    """Marks in `live` (n,) the islands above SMALL_ISLAND_ROWS rows (`island` (k,) set
+    here: each contact's) whose velocity solve (rest and shock, ending at U, Wv) has not
+    met its normal rows; returns whether there is one. A met row ends a loaded point
+    (`_loaded`) at its target (`_target`) and any other point not below it; a point off
+    by more than position round-off over the step, dt |v_n - target| >
+    `_pos_roundoff` (as `push_out`), marks a solve not finished. Unmet, a loaded point
+    that ends above its target is pushed apart while it opens (positive work: the
+    integrator applies the impulse as a constant force and moves the point by its mean
+    velocity), and one below it sinks in, which the position pass then lifts out
+    (potential energy no force paid for): with the scene's `iterations` sweeps a pile
+    of 20 boxes gained 6.9e-8 of its energy in a step and a row of leaning dominoes
+    3.5e-5, and shock propagation held blocks that statics says must tip
+    (tests/test_resting_blocks.py). Friction rows are not tested."""
+    n = inv_m.shape[0]
+    for b in range(n):
+        live[b] = False
+    if k == 0:
+        return False
+    rows = islands(K, k, inv_m, island)
+    found = False
+    for i in range(k):
+        g = island[i]
+        if g < 0 or rows[g] <= SMALL_ISLAND_ROWS or live[g] or \
+                int(K[i, K_MODE]) != IMPULSE:
+            continue
+        off = rel(K, i, 0, U, Wv) - _target(K, i, dt)
+        if not _loaded(K, i):
+            off = min(off, 0.0)
+        if dt * abs(off) > _pos_roundoff(K, i):
+            live[g] = True
+            found = True
+    return found
+
+
+@kernel
 def sweep_islands(K, k, dt, U, Wv, island, live, fixed, e):
     """Gauss-Seidel sweeps of the contacts of the islands marked `live` (n,) (`island`
     (k,): each contact's), each island until a sweep changes none of its impulses by
@@ -3039,7 +3075,23 @@ def _make_entry(integ: int, kinds: tuple):
         level = np.empty(n, np.int64)
         contact_levels(K, k, inv_m, tol, level)
         order, m_order = level_order(K, k, level, True)
+        U_rest, W_rest = U.copy(), Wv.copy()
         shock(K, order, m_order, level, dt, SHOCK_ITERATIONS, U, Wv, DP, DL, True, IW)
+        island = np.empty(k, np.int64)
+        live = np.empty(n, np.bool_)
+        if unsettled_islands(K, k, dt, inv_m, U, Wv, island, live):
+            # a large island whose solve has not met its normal rows (`unsettled_islands`):
+            # its rest swept on to convergence, then the shock levels again from the rest
+            for b in range(n):
+                for c in range(3):
+                    U[b, c], Wv[b, c] = U_rest[b, c], W_rest[b, c]
+                    DP[b, c], DL[b, c] = 0.0, 0.0
+            for i in range(k):
+                for j in range(3):
+                    K[i, K_SN + j] = 0.0
+            sweep_islands(K, k, dt, U, Wv, island, live, np.zeros(k, np.bool_),
+                          np.zeros((k, 2)))
+            shock(K, order, m_order, level, dt, SHOCK_ITERATIONS, U, Wv, DP, DL, True, IW)
         wrench(K, k, DP, DL, DPi, DLi)
         # the resting impulses as a constant wrench over the step: the integrator applies
         # them as it does the forces (a second-order one moves positions by the mean of
