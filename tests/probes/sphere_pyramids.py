@@ -1,11 +1,10 @@
 # Usage: python tests/probes/sphere_pyramids.py REPO_ROOT: pyramids of 5, 14 and 30 spheres
 # that statics can hold (tests/test_sphere_pyramids.py's oracle), in the default compiled
 # step: how far they move in 3 s and how fast they end (issue 48 (d): "bodies at rest in a
-# pile report zero velocity"). Measured 2026-12-07 on 61689d1: 5 spheres hold to 1e-15 m
-# (one small island, solved to convergence); 14 spheres creep 5e-6..2e-5 m at 1e-6 m/s
-# (mu 1.0, 1.5) and collapse at mu 0.6 (statics needs 0.537); 30 spheres creep 1e-3 m at
-# 1 cm/s with mu 1.5. With SMALL_ISLAND_ROWS at 400 the 14- and 30-sphere pyramids hold
-# to 2.5e-10 m, but 30 spheres with mu 0.8 (statics: 0.613) still collapse.
+# pile report zero velocity"). Measured 2026-12-07: on c6aac97 5 spheres held to 1e-15 m,
+# 14 crept 2e-6..4e-5 m or fell at 1.2 x the least mu, 30 crept 2e-4 m or fell; with
+# unsettled_islands (4a5048d) 5 and 14 hold to 2e-10 m at 1.2-3 x, 30 at 2-3 x (1e-13 m)
+# but still fall at 1.2 x (statics: 0.613, mu 0.736).
 """Sphere pyramids against statics, in the compiled contact step (issue 48 (d))."""
 import sys
 
