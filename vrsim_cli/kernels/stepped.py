@@ -3071,11 +3071,14 @@ def _make_entry(integ: int, kinds: tuple):
         level = np.empty(n, np.int64)
         contact_levels(K, k, inv_m, tol, level)
         order, m_order = level_order(K, k, level, True)
-        U_rest, W_rest = U.copy(), Wv.copy()
+        # an island has at most 3 k rows: with no island above SMALL_ISLAND_ROWS possible
+        # (every small scene), the check and its copies are skipped
+        large = 3 * k > SMALL_ISLAND_ROWS
+        U_rest, W_rest = (U.copy(), Wv.copy()) if large else (U, Wv)
         shock(K, order, m_order, level, dt, SHOCK_ITERATIONS, U, Wv, DP, DL, True, IW)
-        island = np.empty(k, np.int64)
-        live = np.empty(n, np.bool_)
-        if unsettled_islands(K, k, dt, inv_m, U, Wv, island, live):
+        island = np.empty(k if large else 0, np.int64)
+        live = np.empty(n if large else 0, np.bool_)
+        if large and unsettled_islands(K, k, dt, inv_m, U, Wv, island, live):
             # a large island whose solve has not met its normal rows (`unsettled_islands`):
             # its rest swept on to convergence, then the shock levels again from the rest
             for b in range(n):
