@@ -580,26 +580,42 @@ def cylinder_sphere(gf, W, ga, gb, margin, C, k):
     return 1
 
 
+@kernel(inline="always")
+def _below(p, n, offset):
+    """(p, its depth below the plane n . x = offset): a candidate of `_deepest`."""
+    return p, offset - la.dot(n, p)
+
+
 @kernel
-def _deepest(pts, depth, m, n, margin, C, k):
-    """The (up to) 4 deepest of m candidate points below a plane of normal n, kept in
-    candidate order (a stable rank for warm starting): contacts at the midpoint between
+def _deepest(cands, n, margin, C, k):
+    """The (up to) 4 deepest of 8 candidates (point, depth) below a plane of normal n, kept
+    in candidate order (a stable rank for warm starting): contacts at the midpoint between
     each point and the plane. The deepest by (depth, then candidate index), as numpy's
-    stable argsort of -depth."""
-    chosen = np.zeros(8, np.bool_)
-    for _ in range(min(4, m)):
+    stable argsort of -depth. The candidates are a tuple and the chosen ones a bit mask
+    (bit i: candidate i), not arrays: no heap allocation per pair."""
+    chosen = 0
+    for _ in range(4):
         best = -1
-        for i in range(m):
-            if not chosen[i] and (best < 0 or depth[i] > depth[best]):
+        for i in range(8):
+            if not chosen & (1 << i) and (best < 0 or cands[i][1] > cands[best][1]):
                 best = i
-        chosen[best] = True
+        chosen |= 1 << best
     count = 0
-    for i in range(m):
-        if chosen[i] and depth[i] >= -margin:
-            p = (pts[i, 0], pts[i, 1], pts[i, 2])
-            _put(C, k + count, la.add(p, la.scale(0.5 * depth[i], n)), n, depth[i])
+    for i in range(8):
+        p, depth = cands[i]
+        if chosen & (1 << i) and depth >= -margin:
+            _put(C, k + count, la.add(p, la.scale(0.5 * depth, n)), n, depth)
             count += 1
     return count
+
+
+@kernel
+def _corner(c, R, h, i):
+    """Corner i of the box (c, R, h): its signs along the box's axes are bits 2, 1, 0 of i
+    (0: minus)."""
+    s = (-1.0 if i & 4 == 0 else 1.0, -1.0 if i & 2 == 0 else 1.0,
+         -1.0 if i & 1 == 0 else 1.0)
+    return la.add(c, la.matvec(R, (s[0] * h[0], s[1] * h[1], s[2] * h[2])))
 
 
 @kernel
@@ -607,15 +623,13 @@ def plane_box(gf, W, ga, gb, margin, C, k):
     """Half-space against the 8 box corners; the 4 deepest within margin."""
     n = (gf[ga, G_PN], gf[ga, G_PN + 1], gf[ga, G_PN + 2])
     c, R, h = _pos(W, gb), _rot(W, gb), _half(gf, gb)
-    pts = np.empty((8, 3))
-    depth = np.empty(8)
-    for i in range(8):
-        s = (-1.0 if i & 4 == 0 else 1.0, -1.0 if i & 2 == 0 else 1.0,
-             -1.0 if i & 1 == 0 else 1.0)
-        p = la.add(c, la.matvec(R, (s[0] * h[0], s[1] * h[1], s[2] * h[2])))
-        pts[i, 0], pts[i, 1], pts[i, 2] = p
-        depth[i] = gf[ga, G_PO] - la.dot(n, p)
-    return _deepest(pts, depth, 8, n, margin, C, k)
+    o = gf[ga, G_PO]
+    # the corners written out into a tuple (no heap arrays per pair)
+    corners = (_below(_corner(c, R, h, 0), n, o), _below(_corner(c, R, h, 1), n, o),
+               _below(_corner(c, R, h, 2), n, o), _below(_corner(c, R, h, 3), n, o),
+               _below(_corner(c, R, h, 4), n, o), _below(_corner(c, R, h, 5), n, o),
+               _below(_corner(c, R, h, 6), n, o), _below(_corner(c, R, h, 7), n, o))
+    return _deepest(corners, n, margin, C, k)
 
 
 @kernel
@@ -652,17 +666,15 @@ def plane_cylinder(gf, W, ga, gb, margin, C, k):
     w = la.cross(axis, u)
     rim = ((-u[0] * r, -u[1] * r, -u[2] * r), (u[0] * r, u[1] * r, u[2] * r),
            (w[0] * r, w[1] * r, w[2] * r), (-w[0] * r, -w[1] * r, -w[2] * r))
-    pts = np.empty((8, 3))
-    depth = np.empty(8)
-    for cap in range(2):
-        s = -1.0 if cap == 0 else 1.0
-        centre = la.add(c, la.scale(h, la.scale(s, axis)))
-        for j in range(4):
-            p = la.add(centre, rim[j])
-            i = 4 * cap + j
-            pts[i, 0], pts[i, 1], pts[i, 2] = p
-            depth[i] = gf[ga, G_PO] - la.dot(n, p)
-    return _deepest(pts, depth, 8, n, margin, C, k)
+    low = la.add(c, la.scale(h, la.scale(-1.0, axis)))  # the caps' centres
+    high = la.add(c, la.scale(h, la.scale(1.0, axis)))
+    o = gf[ga, G_PO]
+    # the rim points written out into a tuple (no heap arrays per pair)
+    rims = (_below(la.add(low, rim[0]), n, o), _below(la.add(low, rim[1]), n, o),
+            _below(la.add(low, rim[2]), n, o), _below(la.add(low, rim[3]), n, o),
+            _below(la.add(high, rim[0]), n, o), _below(la.add(high, rim[1]), n, o),
+            _below(la.add(high, rim[2]), n, o), _below(la.add(high, rim[3]), n, o))
+    return _deepest(rims, n, margin, C, k)
 
 
 @kernel
@@ -871,49 +883,85 @@ def box_capsule(gf, W, ga, gb, margin, C, k):
 # ---------------------------------------------------------------------------- box - box
 
 FACE_SIGNS = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))  # cyclic order
+FACE_CANDIDATES = 24  # contact candidates of a face manifold (`_face_points`)
+
+# box_box runs per box pair and step: it keeps its numbers in tuples, bit masks and one
+# scratch array from its caller (`box_scratch`), not in arrays of its own, whose heap
+# allocations (16 a pair) were a third of a box stack's step.
 
 
 @kernel
-def _face_points(fc, n, u, v, hu, hv, inc_c, inc_n, inc_u, inc_v, inc_hu, inc_hv, pts,
-                 height, ok):
+def box_scratch():
+    """Scratch of box_box, one per caller (reused pair after pair): its face manifold's
+    candidates, a row each: point (3), depth below the reference face."""
+    return np.empty((FACE_CANDIDATES, 4))
+
+
+@kernel(inline="always")
+def _quad_corner(c, fc, u, v, inc_c, inc_u, inc_v, inc_hu, inc_hv):
+    """Corner c (FACE_SIGNS) of the incident face in the reference face's frame (fc; u, v)."""
+    s0, s1 = FACE_SIGNS[c]
+    corner = la.add(la.add(inc_c, la.scale(s0, la.scale(inc_hu, inc_u))),
+                    la.scale(s1, la.scale(inc_hv, inc_v)))
+    rel = la.sub(corner, fc)
+    return la.dot(rel, u), la.dot(rel, v)
+
+
+@kernel(inline="always")
+def _lift(cand, i, x, y, good, fc, u, v, n, inc_n, inc_d, nn):
+    """Candidate i: the point (x, y) of the reference face (its centre when not `good`)
+    lifted along n onto the incident face's plane (inc_n . p = inc_d; nn = inc_n . n),
+    into cand[i] (point, depth: minus its height above the reference face). Returns
+    `good`."""
+    if not good:
+        x = 0.0
+        y = 0.0
+    base = la.add(la.add(fc, la.scale(x, u)), la.scale(y, v))
+    hgt = (inc_d - la.dot(base, inc_n)) / nn
+    p = la.add(base, la.scale(hgt, n))
+    cand[i, 0], cand[i, 1], cand[i, 2] = p
+    cand[i, 3] = -hgt
+    return good
+
+
+@kernel
+def _face_points(fc, n, u, v, hu, hv, inc_c, inc_n, inc_u, inc_v, inc_hu, inc_hv, cand):
     """Contact candidates (24) of a reference face (centre fc, outward normal n towards
     the other box, in-plane axes u, v, half sizes hu, hv) and an incident face, as
     narrowphase._face_points: incident corners inside the rectangle, rectangle corners
     inside the incident quad, and edge crossings, lifted onto the incident face along n.
-    Fills pts (24, 3), height (24) above the reference face and ok (24)."""
-    qx = np.empty(4)
-    qy = np.empty(4)
-    for c in range(4):
-        s0, s1 = FACE_SIGNS[c]
-        corner = la.add(la.add(inc_c, la.scale(s0, la.scale(inc_hu, inc_u))),
-                        la.scale(s1, la.scale(inc_hv, inc_v)))
-        rel = la.sub(corner, fc)
-        qx[c] = la.dot(rel, u)
-        qy[c] = la.dot(rel, v)
+    Fills cand (24, 4) (point, depth below the reference face); returns which are valid
+    as a bit mask (bit i: candidate i)."""
+    # the quad's corners and edges in 4-tuples, each written out (no heap arrays)
+    q0 = _quad_corner(0, fc, u, v, inc_c, inc_u, inc_v, inc_hu, inc_hv)
+    q1 = _quad_corner(1, fc, u, v, inc_c, inc_u, inc_v, inc_hu, inc_hv)
+    q2 = _quad_corner(2, fc, u, v, inc_c, inc_u, inc_v, inc_hu, inc_hv)
+    q3 = _quad_corner(3, fc, u, v, inc_c, inc_u, inc_v, inc_hu, inc_hv)
+    qx = (q0[0], q1[0], q2[0], q3[0])
+    qy = (q0[1], q1[1], q2[1], q3[1])
     tol = 1e-9 * (1.0 + max(hu, hv))
-    px = np.empty(24)
-    py = np.empty(24)
-    ex = np.empty(4)
-    ey = np.empty(4)
-    for c in range(4):
-        ex[c] = qx[(c + 1) % 4] - qx[c]
-        ey[c] = qy[(c + 1) % 4] - qy[c]
+    ex = (qx[1] - qx[0], qx[2] - qx[1], qx[3] - qx[2], qx[0] - qx[3])  # edge c: c -> c + 1
+    ey = (qy[1] - qy[0], qy[2] - qy[1], qy[3] - qy[2], qy[0] - qy[3])
     area = 0.0
     for c in range(4):
         area += qx[c] * qy[(c + 1) % 4] - qx[(c + 1) % 4] * qy[c]
     wind = 1.0 if area >= 0.0 else -1.0
+    inc_d = la.dot(inc_n, inc_c)
+    nn = la.dot(inc_n, n)
+    ok = 0
     for c in range(4):  # (a) incident corners inside the rectangle
-        px[c], py[c] = qx[c], qy[c]
-        ok[c] = abs(qx[c]) <= hu + tol and abs(qy[c]) <= hv + tol
+        good = abs(qx[c]) <= hu + tol and abs(qy[c]) <= hv + tol
+        if _lift(cand, c, qx[c], qy[c], good, fc, u, v, n, inc_n, inc_d, nn):
+            ok |= 1 << c
     for c in range(4):  # (b) rectangle corners inside the incident quad
         bx, by = FACE_SIGNS[c][0] * hu, FACE_SIGNS[c][1] * hv
-        px[4 + c], py[4 + c] = bx, by
         inside = True
         for e in range(4):
             cr = ex[e] * (by - qy[e]) - ey[e] * (bx - qx[e])
             if not cr * wind >= -tol * (abs(ex[e]) + abs(ey[e])):
                 inside = False
-        ok[4 + c] = inside
+        if _lift(cand, 4 + c, bx, by, inside, fc, u, v, n, inc_n, inc_d, nn):
+            ok |= 1 << (4 + c)
     slot = 8
     for line in range(2):  # (c) incident edges crossing the rectangle's edge lines
         for side in (-1.0, 1.0):
@@ -930,21 +978,13 @@ def _face_points(fc, n, u, v, hu, hv, inc_c, inc_n, inc_u, inc_v, inc_hu, inc_hv
                     abs(w) <= h_along + tol
                 x = side * h_line
                 if line == 0:
-                    px[slot], py[slot] = x, w
+                    px, py = x, w
                 else:
-                    px[slot], py[slot] = w, x
-                ok[slot] = good
+                    px, py = w, x
+                if _lift(cand, slot, px, py, good, fc, u, v, n, inc_n, inc_d, nn):
+                    ok |= 1 << slot
                 slot += 1
-    inc_d = la.dot(inc_n, inc_c)
-    nn = la.dot(inc_n, n)
-    for i in range(24):
-        x = px[i] if ok[i] else 0.0
-        y = py[i] if ok[i] else 0.0
-        base = la.add(la.add(fc, la.scale(x, u)), la.scale(y, v))
-        hgt = (inc_d - la.dot(base, inc_n)) / nn
-        height[i] = hgt
-        p = la.add(base, la.scale(hgt, n))
-        pts[i, 0], pts[i, 1], pts[i, 2] = p
+    return ok
 
 
 @kernel(inline="always")
@@ -953,56 +993,75 @@ def _dist_to(pts, i, j):
 
 
 @kernel
-def _reduce(pts, depth, idx, m, chosen):
-    """At most 4 well-spread points among pts[idx[:m]] (contacts.reduce_manifold): the
-    deepest, then farthest-point sampling; into `chosen` (positions into idx), sorted.
-    Returns how many."""
-    unique = np.empty(m, np.int64)
-    nu = 1
-    unique[0] = 0
-    for i in range(1, m):
+def _reduce(cand, within):
+    """At most 4 well-spread points among the candidates cand[i] of bit mask `within`
+    (contacts.reduce_manifold): the deepest, then farthest-point sampling. Returns their
+    bit mask. Sets are bit masks (bit i: candidate i) walked in candidate order, and the
+    picks a tuple in pick order (the order of the minimum over them): no heap arrays."""
+    unique = 0
+    nu = 0
+    for i in range(FACE_CANDIDATES):
+        if not within & (1 << i):
+            continue
         near = math.inf
-        for q in range(nu):
-            near = min(near, _dist_to(pts, idx[i], idx[unique[q]]))
-        if near > 1e-9:
-            unique[nu] = i
+        for j in range(i):
+            if unique & (1 << j):
+                near = min(near, _dist_to(cand, i, j))
+        if nu == 0 or near > 1e-9:  # (the first is kept)
+            unique |= 1 << i
             nu += 1
     if nu <= 4:
-        for q in range(nu):
-            chosen[q] = unique[q]
-        return nu
-    best = unique[0]
-    for q in range(1, nu):
-        if depth[idx[unique[q]]] > depth[idx[best]]:
-            best = unique[q]
-    chosen[0] = best
-    nc = 1
-    while nc < 4:
+        return unique
+    best = -1
+    for q in range(FACE_CANDIDATES):
+        if unique & (1 << q) and (best < 0 or cand[q, 3] > cand[best, 3]):
+            best = q
+    taken = 1 << best
+    picks = (best, best, best)  # the first 3 picks, in pick order
+    for nc in range(1, 4):
         pick, far = -1, -math.inf
-        for q in range(nu):
-            i = unique[q]
-            taken = False
-            for c in range(nc):
-                if chosen[c] == i:
-                    taken = True
-            if taken:
+        for i in range(FACE_CANDIDATES):
+            if not unique & (1 << i) or taken & (1 << i):
                 continue
             near = math.inf
             for c in range(nc):
-                near = min(near, _dist_to(pts, idx[i], idx[chosen[c]]))
+                near = min(near, _dist_to(cand, i, picks[c]))
             if near > far:
                 pick, far = i, near
-        chosen[nc] = pick
-        nc += 1
-    for a in range(nc):  # sort ascending (insertion)
-        for b in range(a + 1, nc):
-            if chosen[b] < chosen[a]:
-                chosen[a], chosen[b] = chosen[b], chosen[a]
-    return nc
+        if pick < 0:  # (only NaN distances left: points of NaN)
+            break
+        taken |= 1 << pick
+        picks = (picks[0], pick if nc == 1 else picks[1], pick if nc == 2 else picks[2])
+    return taken
 
 
 @kernel
-def box_box(gf, W, ga, gb, margin, C, k):
+def _sat_axis(A, B, ha, hb, t, q):
+    """box_box's separating axis q (0-2: A's faces, 3-5: B's, 6-14: the cross of A's axis
+    (q - 6) // 3 and B's (q - 6) % 3) for the centres' offset t: (unit axis, the offset
+    along it, the overlap of the boxes along it; inf for parallel edges: no axis)."""
+    if q < 3:
+        ax = _col(A, q)
+    elif q < 6:
+        ax = _col(B, q - 3)
+    else:
+        ax = la.cross(_col(A, (q - 6) // 3), _col(B, (q - 6) % 3))
+    axu, length = _unit(ax, UP)
+    ra = 0.0
+    rb = 0.0
+    for j in range(3):
+        ra += ha[j] * abs(la.dot(_col(A, j), axu))
+    for j in range(3):
+        rb += hb[j] * abs(la.dot(_col(B, j), axu))
+    dist = la.dot(t, axu)
+    overlap = ra + rb - abs(dist)
+    if q >= 6 and length < 1e-6:  # parallel edges: no axis
+        overlap = math.inf
+    return axu, dist, overlap
+
+
+@kernel
+def box_box(gf, W, ga, gb, margin, C, k, cand=None):
     """Separating axes (3 + 3 faces, 9 edge crosses), then a face manifold (the overlap
     of the reference and incident faces, up to 4 points) or an edge contact (closest
     points of the two edges). Face axes win unless an edge axis is 5 % shallower. A tie
@@ -1010,61 +1069,50 @@ def box_box(gf, W, ga, gb, margin, C, k):
     equally shallow to TIE_TOL) gives the contacts of both, not of the first body's:
     a box meeting its mirror image corner to corner touches both face planes; an edge
     contact adds the shallowest face's manifold points within the margin
-    (narrowphase.box_box)."""
+    (narrowphase.box_box). `cand`: scratch (`box_scratch`; one is made when not given)."""
+    if cand is None:
+        cand = box_scratch()
     ca, cb = _pos(W, ga), _pos(W, gb)
     A, B = _rot(W, ga), _rot(W, gb)
     ha, hb = _half(gf, ga), _half(gf, gb)
     t = la.sub(cb, ca)
-    L = np.empty((15, 3))
-    overlap = np.empty(15)
-    dist = np.empty(15)
-    for q in range(15):
-        if q < 3:
-            ax = _col(A, q)
-        elif q < 6:
-            ax = _col(B, q - 3)
-        else:
-            ax = la.cross(_col(A, (q - 6) // 3), _col(B, (q - 6) % 3))
-        axu, length = _unit(ax, UP)
-        L[q, 0], L[q, 1], L[q, 2] = axu
-        ra = 0.0
-        rb = 0.0
-        for j in range(3):
-            ra += ha[j] * abs(la.dot(_col(A, j), axu))
-        for j in range(3):
-            rb += hb[j] * abs(la.dot(_col(B, j), axu))
-        dist[q] = la.dot(t, axu)
-        overlap[q] = ra + rb - abs(dist[q])
-        if q >= 6 and length < 1e-6:  # parallel edges: no axis
-            overlap[q] = math.inf
+    # sat[q]: (unit axis, offset along it, overlap) of axis q, written out into a tuple
+    sat = (_sat_axis(A, B, ha, hb, t, 0), _sat_axis(A, B, ha, hb, t, 1),
+           _sat_axis(A, B, ha, hb, t, 2), _sat_axis(A, B, ha, hb, t, 3),
+           _sat_axis(A, B, ha, hb, t, 4), _sat_axis(A, B, ha, hb, t, 5),
+           _sat_axis(A, B, ha, hb, t, 6), _sat_axis(A, B, ha, hb, t, 7),
+           _sat_axis(A, B, ha, hb, t, 8), _sat_axis(A, B, ha, hb, t, 9),
+           _sat_axis(A, B, ha, hb, t, 10), _sat_axis(A, B, ha, hb, t, 11),
+           _sat_axis(A, B, ha, hb, t, 12), _sat_axis(A, B, ha, hb, t, 13),
+           _sat_axis(A, B, ha, hb, t, 14))
     face_a = 0
     for q in range(1, 3):
-        if overlap[q] < overlap[face_a]:
+        if sat[q][2] < sat[face_a][2]:
             face_a = q
     face_b = 3
     for q in range(4, 6):
-        if overlap[q] < overlap[face_b]:
+        if sat[q][2] < sat[face_b][2]:
             face_b = q
-    face = face_b if overlap[face_b] < overlap[face_a] else face_a
+    face = face_b if sat[face_b][2] < sat[face_a][2] else face_a
     edge = 6
     for q in range(7, 15):
-        if overlap[q] < overlap[edge]:
+        if sat[q][2] < sat[edge][2]:
             edge = q
     edge2 = -1
     for q in range(6, 15):
-        if q != edge and (edge2 < 0 or overlap[q] < overlap[edge2]):
+        if q != edge and (edge2 < 0 or sat[q][2] < sat[edge2][2]):
             edge2 = q
-    f_ov, e_ov = overlap[face], overlap[edge]
+    f_ov, e_ov = sat[face][2], sat[edge][2]
     use_edge = e_ov < f_ov - 0.05 * abs(f_ov) - 1e-6
     best = edge if use_edge else face
-    depth_sat = overlap[best]
+    depth_sat = sat[best][2]
     if not depth_sat >= -margin:
         return 0
     tie_tol = TIE_TOL * (1.0 + max(ha[0], ha[1], ha[2]) + max(hb[0], hb[1], hb[2]))
     other = face_b if face == face_a else face_a
-    cos = abs(L[face_a, 0] * L[face_b, 0] + L[face_a, 1] * L[face_b, 1] +
-              L[face_a, 2] * L[face_b, 2])
-    faces_tie = abs(overlap[face_a] - overlap[face_b]) <= tie_tol and \
+    La, Lb = sat[face_a][0], sat[face_b][0]
+    cos = abs(La[0] * Lb[0] + La[1] * Lb[1] + La[2] * Lb[2])
+    faces_tie = abs(sat[face_a][2] - sat[face_b][2]) <= tie_tol and \
         cos < 1.0 - PARALLEL_COS
     if use_edge:
         # the shallowest face's manifold points within the margin (what the pair can
@@ -1074,28 +1122,29 @@ def box_box(gf, W, ga, gb, margin, C, k):
         # the face unseen within a step and the position pass lifted it out (+1e-4 J a
         # step, a pile of 4 boxes rocking for 11 s: tests/test_pile_rest.py). Those points
         # are points of the other box within the margin of the face, inside its rims.
-        got = _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, face, margin, False, C, k)
+        got = _box_face(ca, cb, A, B, ha, hb, sat[face], face, margin, False, cand, C, k)
         if faces_tie:  # (both faces, as for face contacts: a mirror image's pair)
-            got += _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, other, margin, False,
+            got += _box_face(ca, cb, A, B, ha, hb, sat[other], other, margin, False, cand,
                              C, k + got)
-        got += _box_edge(ca, cb, A, B, ha, hb, L, dist, overlap, best, C, k + got)
-        if overlap[edge2] - e_ov <= tie_tol:
-            got += _box_edge(ca, cb, A, B, ha, hb, L, dist, overlap, edge2, C, k + got)
+        got += _box_edge(ca, cb, A, B, ha, hb, sat[best], best, C, k + got)
+        if sat[edge2][2] - e_ov <= tie_tol:
+            got += _box_edge(ca, cb, A, B, ha, hb, sat[edge2], edge2, C, k + got)
         return got
-    got = _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, best, margin, True, C, k)
+    got = _box_face(ca, cb, A, B, ha, hb, sat[best], best, margin, True, cand, C, k)
     if faces_tie:
-        got += _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, other, margin, True, C,
+        got += _box_face(ca, cb, A, B, ha, hb, sat[other], other, margin, True, cand, C,
                          k + got)
     return got
 
 
 @kernel
-def _box_edge(ca, cb, A, B, ha, hb, L, dist, overlap, best, C, k):
-    """The edge contact of box_box along edge axis `best`: the closest points of the
-    supporting edges of A (towards B) and of B (towards A). Returns 1."""
-    sgn = 1.0 if dist[best] >= 0.0 else -1.0
-    n = (L[best, 0] * sgn, L[best, 1] * sgn, L[best, 2] * sgn)  # A -> B
-    depth_sat = overlap[best]
+def _box_edge(ca, cb, A, B, ha, hb, axis, best, C, k):
+    """The edge contact of box_box along edge axis `best` (`axis`: its sat tuple): the
+    closest points of the supporting edges of A (towards B) and of B (towards A).
+    Returns 1."""
+    L, dist, depth_sat = axis
+    sgn = 1.0 if dist >= 0.0 else -1.0
+    n = (L[0] * sgn, L[1] * sgn, L[2] * sgn)  # A -> B
     i, j = (best - 6) // 3, (best - 6) % 3
     pa, pb = ca, cb
     for q in range(3):
@@ -1116,14 +1165,14 @@ def _box_edge(ca, cb, A, B, ha, hb, L, dist, overlap, best, C, k):
 
 
 @kernel
-def _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, best, margin, fallback, C, k):
+def _box_face(ca, cb, A, B, ha, hb, axis, best, margin, fallback, cand, C, k):
     """The face manifold of box_box with the reference face of axis `best` (0-2: on A,
-    3-5: on B): the overlap of the reference and the incident face, up to 4 points
-    within the margin (none: the nearest incident corner if `fallback`, else nothing).
-    Returns how many."""
-    sgn = 1.0 if dist[best] >= 0.0 else -1.0
-    n = (L[best, 0] * sgn, L[best, 1] * sgn, L[best, 2] * sgn)  # A -> B
-    depth_sat = overlap[best]
+    3-5: on B; `axis`: its sat tuple): the overlap of the reference and the incident
+    face, up to 4 points within the margin (none: the nearest incident corner if
+    `fallback`, else nothing); cand: scratch (`box_scratch`). Returns how many."""
+    L, dist, depth_sat = axis
+    sgn = 1.0 if dist >= 0.0 else -1.0
+    n = (L[0] * sgn, L[1] * sgn, L[2] * sgn)  # A -> B
     on_a = best < 3
     kk = best % 3
     if on_a:
@@ -1143,41 +1192,33 @@ def _box_face(ca, cb, A, B, ha, hb, L, dist, overlap, best, margin, fallback, C,
     sign = -(1.0 if best_dot >= 0.0 else -1.0)
     inc_n = la.scale(sign, _col(R_inc, mm))
     inc_c = la.add(c_inc, la.scale(h_inc[mm], inc_n))
-    pts = np.empty((24, 3))
-    height = np.empty(24)
-    ok = np.empty(24, np.bool_)
-    _face_points(fc, nr, u, v, hu, hv, inc_c, inc_n, _col(R_inc, (mm + 1) % 3),
-                 _col(R_inc, (mm + 2) % 3), h_inc[(mm + 1) % 3], h_inc[(mm + 2) % 3], pts,
-                 height, ok)
-    depth = np.empty(24)
-    idx = np.empty(24, np.int64)
-    m = 0
-    for q in range(24):
-        depth[q] = -height[q]
-        if ok[q] and depth[q] >= -margin:
-            idx[m] = q
-            m += 1
-    if m == 0:
+    ok = _face_points(fc, nr, u, v, hu, hv, inc_c, inc_n, _col(R_inc, (mm + 1) % 3),
+                      _col(R_inc, (mm + 2) % 3), h_inc[(mm + 1) % 3], h_inc[(mm + 2) % 3],
+                      cand)
+    within = 0  # the valid candidates within the margin (bit q: candidate q)
+    for q in range(FACE_CANDIDATES):
+        if ok & (1 << q) and cand[q, 3] >= -margin:
+            within |= 1 << q
+    if within == 0:
         if not fallback:
             return 0
         # apart within the margin with faces that do not overlap side by side: the
         # incident corner nearest to the reference plane, at the axis' gap
         corner = 0
         for q in range(1, 4):
-            if depth[q] > depth[corner]:
+            if cand[q, 3] > cand[corner, 3]:
                 corner = q
-        p = (pts[corner, 0], pts[corner, 1], pts[corner, 2])
-        _put(C, k, la.add(p, la.scale(0.5 * depth[corner], nr)), n, depth_sat)
+        p = (cand[corner, 0], cand[corner, 1], cand[corner, 2])
+        _put(C, k, la.add(p, la.scale(0.5 * cand[corner, 3], nr)), n, depth_sat)
         return 1
-    chosen = np.empty(4, np.int64)
-    nc = _reduce(pts, depth, idx, m, chosen)
-    for c in range(nc):
-        q = idx[chosen[c]]
-        p = (pts[q, 0], pts[q, 1], pts[q, 2])
-        _put(C, k + c, la.add(p, la.scale(0.5 * depth[q], nr)), n, depth[q])
+    keep = _reduce(cand, within)
+    nc = 0
+    for q in range(FACE_CANDIDATES):  # in candidate order
+        if keep & (1 << q):
+            p = (cand[q, 0], cand[q, 1], cand[q, 2])
+            _put(C, k + nc, la.add(p, la.scale(0.5 * cand[q, 3], nr)), n, cand[q, 3])
+            nc += 1
     return nc
-
-
 
 
 # ----------------------------------------------------------------------------- dispatch
@@ -1212,9 +1253,10 @@ def _first(ta, tb):
 
 
 @kernel
-def pair_contacts(gf, W, ga, gb, margin, C, k):
+def pair_contacts(gf, W, ga, gb, margin, C, k, cand):
     """Contacts of geoms ga (first) and gb whose types have a closed form here, normals
-    from ga to gb, written from row k of C; returns how many."""
+    from ga to gb, written from row k of C; returns how many. cand: box_box's scratch
+    (`box_scratch`)."""
     ta, tb = int(gf[ga, G_TYPE]), int(gf[gb, G_TYPE])
     if ta == SPHERE and tb == SPHERE:
         return sphere_sphere(gf, W, ga, gb, margin, C, k)
@@ -1231,7 +1273,7 @@ def pair_contacts(gf, W, ga, gb, margin, C, k):
             return box_sphere(gf, W, ga, gb, margin, C, k)
         if tb == CAPSULE:
             return box_capsule(gf, W, ga, gb, margin, C, k)
-        return box_box(gf, W, ga, gb, margin, C, k)
+        return box_box(gf, W, ga, gb, margin, C, k, cand)
     if ta == CAPSULE:
         if tb == SPHERE:
             return capsule_sphere(gf, W, ga, gb, margin, C, k)
@@ -1274,6 +1316,7 @@ def narrow_phase(gf, W, P, m, sweep, tolerance, C):
     k = np.int64(0)  # not literal zeros: callees would be compiled twice
     F = np.empty((4, 2), np.int64)
     nf = np.int64(0)
+    cand = box_scratch()  # one for all pairs
     for p in range(m):
         g1, g2 = P[p, 0], P[p, 1]
         if gf[g1, G_PYTHON] != 0.0 or gf[g2, G_PYTHON] != 0.0:
@@ -1288,7 +1331,7 @@ def narrow_phase(gf, W, P, m, sweep, tolerance, C):
         ba, bb = int(gf[ga, G_BODY]), int(gf[gb, G_BODY])
         margin = sweep[ba] + sweep[bb] + tolerance
         C = _grow(C, k, MAX_PER_PAIR)
-        got = pair_contacts(gf, W, ga, gb, margin, C, k)
+        got = pair_contacts(gf, W, ga, gb, margin, C, k, cand)
         own_rows(gf, ga, gb, C, k, got)
         k += got
     if k > 1:
