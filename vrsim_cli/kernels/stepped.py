@@ -2907,6 +2907,7 @@ def _make_entry(integ: int, kinds: tuple):
         grown = np.zeros(n, np.bool_)
         stopped = np.zeros(n, np.bool_)
         W = np.empty((ng, kc.W_SIZE))
+        cand = kc.box_scratch()  # box_box's, one for all its pairs (not one a pair)
         kc.place(gf, S, W)
         pad = np.empty(ng)
         lo, hi = np.empty((ng, 3)), np.empty((ng, 3))
@@ -2980,7 +2981,7 @@ def _make_entry(integ: int, kinds: tuple):
                         if BC:
                             got = kc.box_capsule(gf, W, ga, gb, margin, C, kn)
                     elif BB:
-                        got = kc.box_box(gf, W, ga, gb, margin, C, kn)
+                        got = kc.box_box(gf, W, ga, gb, margin, C, kn, cand)
                 elif ta == kc.CAPSULE:
                     if tb == kc.SPHERE:
                         if CS:
