@@ -273,7 +273,7 @@ def test_bench_command_writes_report_json_and_plots(invoke, tmp_path):
     assert data["machine"]["cores"]
     for name in ("projectile", "bounce", "dzhanibekov"):
         assert {p["engine"] for p in data["points"] if p["problem"] == name} == engines
-    for name in ("spheres", "stack"):
+    for name in ("spheres", "spheres-scaling", "stack"):
         assert {r["engine"] for r in data["throughput"] if r["problem"] == name} == engines
     text = (tmp_path / "b" / "bench.md").read_text()
     assert "| engine | method | dt (s) |" in text and "| body-steps/s |" in text

@@ -74,6 +74,19 @@ def problems() -> dict[str, Problem]:
                      "mujoco": bench_spheres.mujoco_spheres,
                      "pybullet": bench_spheres.pybullet_spheres}),
         Problem(
+            name=bench_spheres.SCALING,
+            description="spheres in a box as in `spheres`, at N = 8, 16, 27, 32, 33, 64, "
+                        "128, 3 s (--quick: 0.5 s), vrsim with `impacts` unset; wall per "
+                        "step against N and vrsim / MuJoCo per N (issue 48 (b): rises "
+                        "with N, <= 1 x MuJoCo at every N)",
+            truth="energy at the end over the start (<= 1), spheres that left the box "
+                  "(0), deepest wall penetration in m",
+            kind="throughput",
+            runners={"vrsim": bench_spheres.vrsim_spheres_scaling,
+                     "mujoco": bench_spheres.mujoco_spheres_scaling,
+                     "pybullet": bench_spheres.pybullet_spheres_scaling},
+            section=bench_spheres.scaling_markdown),
+        Problem(
             name="stack",
             description="ten 1 kg unit cubes stacked on a ground plane, friction 0.5, "
                         "5 s (--quick: 0.5 s); each engine also at coarser steps (1/5 ... "
@@ -330,6 +343,9 @@ def plot(results: Results, folder: Path) -> list[Path]:
         if name == bench_free.PROBLEM:  # cost per body-step against N
             written.append(bench_free.plot(rows, folder / f"{name}.png", plt))
             continue
+        if name == bench_spheres.SCALING:  # cost per step against N
+            written.append(bench_spheres.scaling_plot(rows, folder / f"{name}.png", plt))
+            continue
         fig, ax = plt.subplots(figsize=(6.4, 0.6 + 0.45 * len(rows)))
         ax.barh([f"{r.engine}: {r.setting}"[:60] for r in rows],
                 [r.body_steps_per_s for r in rows])
@@ -356,6 +372,7 @@ def to_json(results: Results) -> str:
                        "summary": summary(results.points), "throughput": rows,
                        "throughput_summary": throughput_summary(results.rows),
                        "stack_frontier": stack_frontier(results.rows),
+                       "spheres_scaling": bench_spheres.scaling(results.rows),
                        "free_bodies": bench_free.ratios(
                            [r for r in results.rows if r.problem == bench_free.PROBLEM])},
                       indent=2)
