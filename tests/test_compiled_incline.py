@@ -229,6 +229,37 @@ def test_a_body_that_slides_follows_the_closed_form(seed):
 
 
 @pytest.mark.parametrize("seed", range(DRAWS // 2))
+def test_near_the_cone_edge_holds_or_slides_exactly(seed):
+    """mu within 0.1-3 % of tan th, above (held) or below (slides): boxes turned about
+    the normal and cylinders on their caps, from rest. A face's corners share the load
+    indeterminately, and near the edge a solve by sweeps stops before it has converged
+    (up to 6e-4 of a t^2 / 2 off in 17 of 20 slides with 512 sweeps); the direct solve
+    of small islands (`kernels.coulomb`) meets the closed forms as far from the edge."""
+    kind = ("box", "cylinder")[seed % 2]
+    hold = (seed // 2) % 2 == 0
+    rng, dt, integrator, th, yaw, mass = draw(seed, "cone" + kind)
+    th = math.radians(float(rng.uniform(5.0, 25.0)))  # held bodies must not tip
+    shape, height, q, half = flat_body(rng, kind, th, yaw)
+    if math.tan(th) * 1.05 * height >= 0.8 * half:  # too tall for this slope: flatter
+        th = math.atan(0.8 * half / (1.05 * height))
+        shape, height, q, half = flat_body(np.random.default_rng([48, 5, seed]), kind, th,
+                                           yaw)
+    delta = 10.0 ** float(rng.uniform(-3.0, math.log10(3e-2)))
+    mu = math.tan(th) * (1.0 + delta if hold else 1.0 - delta)
+    position, states = run_on_slope(dt, integrator, th, yaw, mass, shape, height, q, mu, 2.0)
+    _, down = slope_frame(th, yaw)
+    a = 0.0 if hold else G * (math.sin(th) - mu * math.cos(th))
+    worst_x = worst_turn = 0.0
+    for s in states[1:]:
+        x = 0.5 * a * s.t * s.t
+        off = float(np.linalg.norm(s.body_pos[1] - position - x * down))
+        worst_x = max(worst_x, off if hold else off / x)
+        worst_turn = max(worst_turn, turned(q, s.body_quat[1]))
+    assert worst_x <= 1e-9 and worst_turn <= 1e-9, (
+        kind, hold, math.degrees(th), delta, dt, integrator, worst_x, worst_turn)
+
+
+@pytest.mark.parametrize("seed", range(DRAWS // 2))
 def test_a_sphere_or_capsule_rolls_at_the_closed_form(seed):
     kind = ("sphere", "capsule")[seed % 2]
     rng, dt, integrator, th, yaw, mass = draw(seed, kind)

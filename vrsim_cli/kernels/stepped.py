@@ -22,8 +22,9 @@ From the state S at the step's start, one call of `entry(...)` does:
    goes on (a ball knocked by another must not tunnel through a wall it was not tested
    against);
 6. small islands (bodies joined by contacts, at most SMALL_ISLAND_ROWS rows) rest on to
-   convergence (`rest_small_islands`); larger ones keep the scene's `iterations` sweeps
-   and the shock levels;
+   convergence and are polished by Newton's method (`rest_small_islands`,
+   `kernels.coulomb`); larger ones keep the scene's `iterations` sweeps and the shock
+   levels;
 7. Moreau-Jean's theta = 1/2: the impacts' velocity change is added to the start state
    (positions move by all of it), the resting impulses go to the scene's integrator as
    a constant wrench (impulse / dt per body), so a second-order integrator moves a body
@@ -61,6 +62,7 @@ import math
 import numpy as np
 
 from vrsim_cli.kernels import collide as kc
+from vrsim_cli.kernels import coulomb as kcb
 from vrsim_cli.kernels import dynamics as kd
 from vrsim_cli.kernels import linalg as la
 from vrsim_cli.kernels import pinv as kp
@@ -1447,7 +1449,10 @@ def rest(K, k, dt, iterations, U, Wv, until_fixed):
 # off); islands that converge slowly (a stack of 1 kg plates and 100 kg boxes:
 # Gauss-Seidel's rate is near 1 at such mass ratios) stop at the cap, which bounds an
 # island's cost to 48 x 512 row updates (~0.4 ms; a cap of 2000 made such a stack 20-41
-# times slower per step than 8 sweeps, 512 about a quarter of that).
+# times slower per step than 8 sweeps, 512 about a quarter of that). The sweeps find the
+# contacts that act and slide but stop at the cap near the friction cone's edge (a slide
+# starting within 1 % of it ended up to 6e-4 of a t^2 / 2 off), so Newton's method then
+# finishes each island to round-off (`polish_islands`, `kernels.coulomb`).
 SMALL_ISLAND_ROWS = 48
 SMALL_ISLAND_SWEEPS = 512
 REST_SETTLED = 1e-15  # relative: an impulse's own round-off
@@ -1491,10 +1496,94 @@ def islands(K, k, inv_m, island):
 
 
 @kernel
+def delassus(K, idx, m, A):
+    """A (3m, 3m): the Delassus matrix J M^-1 J^T of contacts idx[:m] (rows n, t1, t2 of
+    each), through the same columns `apply` and `rel` use: the velocity change of row p
+    per unit impulse of row q (static and kinematic bodies have no inverse mass)."""
+    for p in range(m):
+        i = idx[p]
+        ai, bi = int(K[i, K_A]), int(K[i, K_B])
+        for q in range(m):
+            l = idx[q]
+            al, bl = int(K[l, K_A]), int(K[l, K_B])
+            for j in range(3):
+                for jj in range(3):
+                    s = 0.0
+                    for bi_, si, ci in ((bi, 1.0, K_RNB + 6 * j), (ai, -1.0, K_RNA + 6 * j)):
+                        for bl_, sl, wl, im in ((bl, 1.0, K_WNB + 6 * jj, K_IMB),
+                                                (al, -1.0, K_WNA + 6 * jj, K_IMA)):
+                            if bi_ != bl_ or K[l, im] == 0.0 and K[l, wl] == 0.0 and \
+                                    K[l, wl + 1] == 0.0 and K[l, wl + 2] == 0.0:
+                                continue
+                            d = K[i, K_N + 3 * j] * K[l, K_N + 3 * jj] \
+                                + K[i, K_N + 3 * j + 1] * K[l, K_N + 3 * jj + 1] \
+                                + K[i, K_N + 3 * j + 2] * K[l, K_N + 3 * jj + 2]
+                            s += si * sl * (K[l, im] * d + K[i, ci] * K[l, wl]
+                                            + K[i, ci + 1] * K[l, wl + 1]
+                                            + K[i, ci + 2] * K[l, wl + 2])
+                    A[3 * p + j, 3 * q + jj] = s
+
+
+@kernel
+def polish_islands(K, k, dt, U, Wv, island, live, fixed, e):
+    """Each island marked `live` (n,) (`island` (k,): each contact's), after its sweeps,
+    polished to Coulomb's law (`coulomb.polish`: Newton on Alart-Curnier's function from
+    the sweeps' impulses; |F| never grows), the change of its impulses applied to U, Wv.
+    `fixed` (k,) contacts slide: their friction is held at mu N along -e (k, 2)
+    (`slip_stops`). `live` is consumed."""
+    n = live.shape[0]
+    idx = np.empty(k, np.int64)
+    for g in range(n):
+        if not live[g]:
+            continue
+        m = 0
+        for i in range(k):
+            if island[i] == g and int(K[i, K_MODE]) == IMPULSE:
+                idx[m] = i
+                m += 1
+        if m == 0:
+            live[g] = False
+            continue
+        A = np.empty((3 * m, 3 * m))
+        delassus(K, idx, m, A)
+        u0, lam0, lam = np.empty(3 * m), np.empty(3 * m), np.empty(3 * m)
+        tn, off = np.empty(m), np.empty((m, 2))
+        fx, ee = np.empty(m, np.bool_), np.empty((m, 2))
+        for p in range(m):
+            i = idx[p]
+            v = rel3(K, i, U, Wv)
+            for j in range(3):
+                u0[3 * p + j] = v[j]
+                lam0[3 * p + j] = K[i, K_LN + j]
+                lam[3 * p + j] = K[i, K_LN + j]
+            tn[p] = _target(K, i, dt)
+            off[p, 0], off[p, 1] = K[i, K_V0T], K[i, K_V0T + 1]
+            fx[p] = fixed[i]
+            ee[p, 0], ee[p, 1] = e[i, 0], e[i, 1]
+        kcb.polish(A, u0, lam0, tn, off, mu_of(K, idx, m), fx, ee, lam)
+        for p in range(m):
+            i = idx[p]
+            for j in range(3):
+                d = lam[3 * p + j] - K[i, K_LN + j]
+                apply(K, i, j, d, U, Wv)
+                K[i, K_LN + j] = lam[3 * p + j]
+        live[g] = False
+
+
+@kernel
+def mu_of(K, idx, m):
+    out = np.empty(m)
+    for p in range(m):
+        out[p] = K[idx[p], K_MU]
+    return out
+
+
+@kernel
 def rest_small_islands(K, k, dt, inv_m, U, Wv):
     """The rest of every island of at most SMALL_ISLAND_ROWS rows taken on to convergence
     (the comment above): sweeps of those islands' contacts until a sweep changes no
-    impulse of an island by more than REST_SETTLED of its largest."""
+    impulse of an island by more than REST_SETTLED of its largest, then Newton's polish
+    (`polish_islands`) where Coulomb's law is not yet met to round-off."""
     if k == 0:
         return
     island = np.empty(k, np.int64)
@@ -1508,7 +1597,10 @@ def rest_small_islands(K, k, dt, inv_m, U, Wv):
             any_live = True
     if not any_live:
         return
-    sweep_islands(K, k, dt, U, Wv, island, live, np.zeros(k, np.bool_), np.zeros((k, 2)))
+    fixed, e = np.zeros(k, np.bool_), np.zeros((k, 2))
+    swept = live.copy()
+    sweep_islands(K, k, dt, U, Wv, island, live, fixed, e)
+    polish_islands(K, k, dt, U, Wv, island, swept, fixed, e)
 
 
 @kernel
@@ -2484,7 +2576,9 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
             stops[i] = True
             live[g] = True
     Ks, Us, Ws = K.copy(), U.copy(), Wv.copy()
+    swept = live.copy()
     sweep_islands(Ks, k, dt, Us, Ws, island, live, stops, e)
+    polish_islands(Ks, k, dt, Us, Ws, island, swept, stops, e)
     tau_w, w_sum = np.zeros(n), np.zeros(n)
     for i in range(k):
         if not stops[i]:
