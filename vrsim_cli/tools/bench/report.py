@@ -30,6 +30,10 @@ __all__ = ["REPEAT_BUDGET_S", "markdown", "plot", "problems", "run_bench", "summ
 # ----------------------------------------------------------------------------- registry
 
 
+# what the two spheres-in-a-box problems check against (the same scene)
+SPHERES_TRUTH = ("energy at the end over the start (<= 1), spheres that left the box (0), "
+                 "deepest wall penetration in m")
+
 def problems() -> dict[str, Problem]:
     listed = [
         Problem(
@@ -67,8 +71,7 @@ def problems() -> dict[str, Problem]:
             description="N = 100 and 1000 spheres (r = 0.05 m, 0.1 kg, restitution 0.5, "
                         "friction 0.5) with random velocities in a closed box, g = 9.81, "
                         "dt = 0.01 s (tools/bench/spheres.py)",
-            truth="energy at the end over the start (<= 1), spheres that left the box "
-                  "(0), deepest wall penetration in m",
+            truth=SPHERES_TRUTH,
             kind="throughput",
             runners={"vrsim": bench_spheres.vrsim_spheres,
                      "mujoco": bench_spheres.mujoco_spheres,
@@ -79,8 +82,7 @@ def problems() -> dict[str, Problem]:
                         "128, 3 s (--quick: 0.5 s), vrsim with `impacts` unset; wall per "
                         "step against N and vrsim / MuJoCo per N (issue 48 (b): rises "
                         "with N, <= 1 x MuJoCo at every N)",
-            truth="energy at the end over the start (<= 1), spheres that left the box "
-                  "(0), deepest wall penetration in m",
+            truth=SPHERES_TRUTH,
             kind="throughput",
             runners={"vrsim": bench_spheres.vrsim_spheres_scaling,
                      "mujoco": bench_spheres.mujoco_spheres_scaling,
