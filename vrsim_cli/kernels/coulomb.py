@@ -84,6 +84,24 @@ def velocities(A, u0, lam0, lam, centre, ridge, u):
         u[i] = s + ridge * A[i, i] * (lam[i] - centre[i])
 
 
+@kernel(inline="always")
+def contact_residual(ln, lt1, lt2, un, ut1, ut2, tn, o1, o2, mu, fixed, e1, e2, rn, rt):
+    """Alart-Curnier's F (module docstring) of one contact: impulses (ln, lt1, lt2),
+    velocities (un, ut1, ut2), target tn, slip offset (o1, o2), friction mu, held sliding
+    along -(e1, e2) when `fixed`, row scales rn, rt. Returns (F_n, F_t1, F_t2)."""
+    lnp = max(ln - rn * (un - tn), 0.0)
+    bound = mu * lnp
+    if fixed:
+        return ln - lnp, lt1 + bound * e1, lt2 + bound * e2
+    z1 = lt1 - rt * (ut1 + o1)
+    z2 = lt2 - rt * (ut2 + o2)
+    nz = math.sqrt(z1 * z1 + z2 * z2)
+    if nz > bound:
+        z1 *= bound / nz
+        z2 *= bound / nz
+    return ln - lnp, lt1 - z1, lt2 - z2
+
+
 @kernel
 def residual(u, lam, tn, off, mu, fixed, e, r, F):
     """Alart-Curnier's F (module docstring) at lam, whose velocities are u; returns
@@ -92,22 +110,9 @@ def residual(u, lam, tn, off, mu, fixed, e, r, F):
     worst = 0.0
     for i in range(m):
         p = 3 * i
-        zn = lam[p] - r[p] * (u[p] - tn[i])
-        lnp = max(zn, 0.0)
-        F[p] = lam[p] - lnp
-        bound = mu[i] * lnp
-        if fixed[i]:
-            F[p + 1] = lam[p + 1] + bound * e[i, 0]
-            F[p + 2] = lam[p + 2] + bound * e[i, 1]
-        else:
-            z1 = lam[p + 1] - r[p + 1] * (u[p + 1] + off[i, 0])
-            z2 = lam[p + 2] - r[p + 2] * (u[p + 2] + off[i, 1])
-            nz = math.sqrt(z1 * z1 + z2 * z2)
-            if nz > bound:
-                z1 *= bound / nz
-                z2 *= bound / nz
-            F[p + 1] = lam[p + 1] - z1
-            F[p + 2] = lam[p + 2] - z2
+        F[p], F[p + 1], F[p + 2] = contact_residual(
+            lam[p], lam[p + 1], lam[p + 2], u[p], u[p + 1], u[p + 2], tn[i], off[i, 0],
+            off[i, 1], mu[i], fixed[i], e[i, 0], e[i, 1], r[p], r[p + 1])
         for j in range(3):
             worst = max(worst, abs(F[p + j]))
     return worst

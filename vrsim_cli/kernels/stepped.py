@@ -1525,24 +1525,57 @@ def delassus(K, idx, m, A):
 
 
 @kernel
+def _island_met(K, idx, m, dt, U, Wv, fixed, e):
+    """Whether contacts idx[:m] (an island) meet Coulomb's law to `coulomb.ROUNDOFF`
+    already, as `coulomb.polish` would judge it (its row scales are K_MN and K_FSTEP,
+    the same inverse effective masses up to round-off): most islands at rest or sliding
+    steadily do after their sweeps, and skip building their Delassus matrix."""
+    worst, scale = 0.0, 0.0
+    for p in range(m):
+        i = idx[p]
+        un, ut1, ut2 = rel3(K, i, U, Wv)
+        ln, lt1, lt2 = K[i, K_LN], K[i, K_LT], K[i, K_LT + 1]
+        tn = _target(K, i, dt)
+        rn = K[i, K_MN] if K[i, K_MN] > 0.0 else 1.0
+        rt = K[i, K_FSTEP] if K[i, K_FSTEP] > 0.0 else 1.0
+        f0, f1, f2 = kcb.contact_residual(ln, lt1, lt2, un, ut1, ut2, tn, K[i, K_V0T],
+                                          K[i, K_V0T + 1], K[i, K_MU], fixed[i], e[i, 0],
+                                          e[i, 1], rn, rt)
+        worst = max(worst, abs(f0), abs(f1), abs(f2))
+        scale = max(scale, abs(ln), abs(lt1), abs(lt2), abs(f0), abs(f1), abs(f2),
+                    rn * abs(un - tn))
+    return worst <= kcb.ROUNDOFF * scale
+
+
+@kernel
 def polish_islands(K, k, dt, U, Wv, island, live, fixed, e):
     """Each island marked `live` (n,) (`island` (k,): each contact's), after its sweeps,
     polished to Coulomb's law (`coulomb.polish`: Newton on Alart-Curnier's function from
     the sweeps' impulses; |F| never grows), the change of its impulses applied to U, Wv.
     `fixed` (k,) contacts slide: their friction is held at mu N along -e (k, 2)
-    (`slip_stops`). `live` is consumed."""
+    (`slip_stops`). The contacts are grouped by island once (a scene of many small
+    islands costs O(k), not islands x k)."""
     n = live.shape[0]
-    idx = np.empty(k, np.int64)
+    count = np.zeros(n + 1, np.int64)
+    for i in range(k):
+        g = island[i]
+        if g >= 0 and live[g] and int(K[i, K_MODE]) == IMPULSE:
+            count[g + 1] += 1
+    for g in range(n):  # count[g] becomes island g's first slot in `order`
+        count[g + 1] += count[g]
+    order = np.empty(k, np.int64)
+    fill = count[:n].copy()
+    for i in range(k):  # contacts in their own order within each island
+        g = island[i]
+        if g >= 0 and live[g] and int(K[i, K_MODE]) == IMPULSE:
+            order[fill[g]] = i
+            fill[g] += 1
     for g in range(n):
-        if not live[g]:
-            continue
-        m = 0
-        for i in range(k):
-            if island[i] == g and int(K[i, K_MODE]) == IMPULSE:
-                idx[m] = i
-                m += 1
+        m = count[g + 1] - count[g]
         if m == 0:
-            live[g] = False
+            continue
+        idx = order[count[g]:count[g + 1]]
+        if _island_met(K, idx, m, dt, U, Wv, fixed, e):
             continue
         A = np.empty((3 * m, 3 * m))
         delassus(K, idx, m, A)
@@ -1567,7 +1600,6 @@ def polish_islands(K, k, dt, U, Wv, island, live, fixed, e):
                 d = lam[3 * p + j] - K[i, K_LN + j]
                 apply(K, i, j, d, U, Wv)
                 K[i, K_LN + j] = lam[3 * p + j]
-        live[g] = False
 
 
 @kernel
