@@ -305,3 +305,45 @@ def test_lu_solve_against_numpy():
         assert coulomb.lu_solve(J.copy(), b.copy(), x)
         ref = -np.linalg.solve(J, b)
         assert np.abs(x - ref).max() <= 1e-12 * np.abs(ref).max()
+
+
+def test_delassus_matches_unit_impulses_through_apply_and_rel():
+    """`stepped.delassus` against the step's own velocity path: column q of A is the
+    change of every row's relative velocity (`rel`) after a unit impulse along row q
+    (`apply`), on random contact rows between moving, static and shared bodies."""
+    from vrsim_cli.kernels import stepped as ks
+
+    rng = np.random.default_rng(61)
+    for _ in range(20):
+        n_body, m = 4, int(rng.integers(1, 7))
+        inv_m = np.where(rng.random(n_body) < 0.25, 0.0, 1.0 / rng.uniform(0.2, 5, n_body))
+        K = np.zeros((m, ks.K_SIZE))
+        for i in range(m):
+            a, b = rng.choice(n_body, 2, replace=False)
+            K[i, ks.K_A], K[i, ks.K_B] = a, b
+            n = rng.normal(size=3)
+            n /= np.linalg.norm(n)
+            t1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+            t1 /= np.linalg.norm(t1)
+            dirs = (n, t1, np.cross(n, t1))
+            ra, rb = rng.normal(size=3), rng.normal(size=3)
+            for j, d in enumerate(dirs):
+                K[i, ks.K_N + 3 * j:ks.K_N + 3 * j + 3] = d
+                for body, arm, cc, wc in ((a, ra, ks.K_RNA, ks.K_WNA),
+                                          (b, rb, ks.K_RNB, ks.K_WNB)):
+                    cross = np.cross(arm, d)
+                    K[i, cc + 6 * j:cc + 6 * j + 3] = cross
+                    R = np.random.default_rng([61, int(body)]).normal(size=(3, 3))
+                    inv_i = (R @ R.T + np.eye(3)) * (inv_m[body] > 0)  # body's, shared
+                    K[i, wc + 6 * j:wc + 6 * j + 3] = inv_i @ cross
+            K[i, ks.K_IMA], K[i, ks.K_IMB] = inv_m[a], inv_m[b]
+        idx = np.arange(m)
+        A = np.empty((3 * m, 3 * m))
+        ks.delassus(K, idx, m, A)
+        ref = np.empty_like(A)
+        for q in range(3 * m):
+            U, W = np.zeros((n_body, 3)), np.zeros((n_body, 3))
+            ks.apply.py_func(K, q // 3, q % 3, 1.0, U, W)
+            for p in range(3 * m):
+                ref[p, q] = ks.rel.py_func(K, p // 3, p % 3, U, W)
+        assert np.abs(A - ref).max() <= 1e-12 * max(np.abs(ref).max(), 1.0)
