@@ -1580,7 +1580,7 @@ def polish_islands(K, k, dt, U, Wv, island, live, fixed, e):
         A = np.empty((3 * m, 3 * m))
         delassus(K, idx, m, A)
         u0, lam0, lam = np.empty(3 * m), np.empty(3 * m), np.empty(3 * m)
-        tn, off = np.empty(m), np.empty((m, 2))
+        tn, off, mu = np.empty(m), np.empty((m, 2)), np.empty(m)
         fx, ee = np.empty(m, np.bool_), np.empty((m, 2))
         for p in range(m):
             i = idx[p]
@@ -1591,23 +1591,16 @@ def polish_islands(K, k, dt, U, Wv, island, live, fixed, e):
                 lam[3 * p + j] = K[i, K_LN + j]
             tn[p] = _target(K, i, dt)
             off[p, 0], off[p, 1] = K[i, K_V0T], K[i, K_V0T + 1]
+            mu[p] = K[i, K_MU]
             fx[p] = fixed[i]
             ee[p, 0], ee[p, 1] = e[i, 0], e[i, 1]
-        kcb.polish(A, u0, lam0, tn, off, mu_of(K, idx, m), fx, ee, lam)
+        kcb.polish(A, u0, lam0, tn, off, mu, fx, ee, lam)
         for p in range(m):
             i = idx[p]
             for j in range(3):
                 d = lam[3 * p + j] - K[i, K_LN + j]
                 apply(K, i, j, d, U, Wv)
                 K[i, K_LN + j] = lam[3 * p + j]
-
-
-@kernel
-def mu_of(K, idx, m):
-    out = np.empty(m)
-    for p in range(m):
-        out[p] = K[idx[p], K_MU]
-    return out
 
 
 @kernel
