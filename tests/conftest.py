@@ -326,6 +326,68 @@ def warm_up_record(request, tmp_path_factory, _warm_up_workers):
     return record
 
 
+def first_compile_key(unit: str) -> str | None:
+    """The pytest-cache key (`first_compile_record`) of what the first compile of warm-up
+    unit `unit` measured, for this very compile: the kernels' sources (the cache folder's
+    src-<digest>), the CPU and Python (`jit.host_key`), Python's, numba's and llvmlite's
+    versions, and every source file of vrsim_cli (the helper process's own code and
+    imports). None when kernels are not cached (then every run compiles)."""
+    import hashlib
+    import sys
+
+    import llvmlite
+    import numba
+
+    import vrsim_cli
+    from vrsim_cli.kernels import jit
+
+    folder = jit.cache_dir()
+    if folder is None or jit.JIT_DISABLED:
+        return None
+    h = hashlib.sha256(repr((folder.name, jit.host_key(), sys.version, numba.__version__,
+                             llvmlite.__version__)).encode())
+    package = Path(vrsim_cli.__file__).resolve().parent
+    for path in sorted(package.rglob("*.py")):
+        h.update(str(path.relative_to(package)).encode() + b"\0" + path.read_bytes() + b"\0")
+    return f"vrsim/first-compile/{unit}-{h.hexdigest()[:16]}"
+
+
+@pytest.fixture(scope="session")
+def first_compile_record(request, warm_up_record):
+    """first_compile_record(unit) -> (what the first compile of warm-up unit `unit`
+    measured: a dict, where it comes from), or None.
+
+    A first compile happens once per kernel source: on a fresh machine (CI) this session's
+    warm-up makes it and measures it (`warm_up_record`); with a warm cache no process of
+    the session compiles, and a test that needs the measurement makes the compile itself
+    into an empty cache of its own (test_memory: ~2 min of a worker, ~60 s of it CPU,
+    every session) unless an earlier session already measured this very compile: same
+    kernels, vrsim sources, CPU, Python and numba (`first_compile_key`). Such a
+    measurement is kept in pytest's cache (.pytest_cache) by `save_first_compile`; a
+    change to any of those keys it out, and the next session measures again."""
+    cache = getattr(request.config, "cache", None)  # None under -p no:cacheprovider
+
+    def record(unit: str) -> tuple[dict, str] | None:
+        found = warm_up_record(unit)
+        if found is not None:
+            save_first_compile(request.config, unit, found)
+            return found, "this session's warm-up"
+        key = first_compile_key(unit) if cache is not None else None
+        kept = cache.get(key, None) if key is not None else None
+        return (kept, "an earlier session (.pytest_cache)") if kept else None
+
+    return record
+
+
+def save_first_compile(config, unit: str, measured: dict) -> None:
+    """Keep what the first compile of `unit` measured for later sessions of the same code
+    (`first_compile_record`)."""
+    cache = getattr(config, "cache", None)
+    key = first_compile_key(unit) if cache is not None else None
+    if key is not None:
+        cache.set(key, measured)
+
+
 @pytest.fixture(scope="session")
 def _kernels_compiled(tmp_path_factory, _warm_up_workers):
     """Compile (or load from the cache) every integrator's kernel once, before the first CLI
