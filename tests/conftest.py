@@ -77,22 +77,29 @@ def pytest_configure(config):
                                        f"{REQUIRE_OSMESA}=1")
 
 
-# The files that take longest (seconds of CPU on a fresh machine, most first: kernel
-# compiles, subprocesses, fuzzing), run first. xdist (`--dist loadfile
+# The files that take longest (seconds of CPU with a warm kernel cache, most first:
+# simulations, subprocesses, fuzzing), run first. xdist (`--dist loadfile
 # --no-loadscope-reorder`, pyproject.toml) hands out whole files in collection order as
 # workers free up, so long files first leaves only short ones for the end and the workers
 # finish together, rather than one running a long file alone while the other idles.
-# With two workers, each is first handed two files (the 1st and 3rd to gw0, the 2nd and
-# 4th to gw1): gw0 takes the first stepped compile of the warm-up (~70 s on a fresh
-# machine) and gw1 starts its tests once the rest of the warm-up is done (~35 s), so its
-# two files (2nd, 4th) are long ones that need no stepped entry, which would make it wait.
-LONGEST_FIRST = ("test_stepped.py", "test_data_loss.py", "test_cpu_independence.py",
-                 "test_resting_scenes.py", "test_memory.py", "test_located_tunnelling.py",
-                 "test_hostile_input.py", "test_resting_blocks.py", "test_hull_stacks.py",
-                 "test_sweep.py", "test_hostile_schema.py", "test_cylinder_manifolds.py",
-                 "test_tipping_landing.py", "test_incline.py", "test_loop.py",
-                 "test_kernels.py", "test_bench.py", "test_golden.py",
-                 "test_collision_response.py", "test_guard.py")
+# With two workers, gw0 is handed the 1st file and gw1 the 2nd, then each the next one
+# when it has at most two tests left. On a fresh machine gw0 takes the first stepped
+# compile of the warm-up (~70 s) and gw1 starts its tests once the rest of the warm-up is
+# done (~35 s), so the 2nd file is a long one that needs no stepped entry (which would
+# make gw1 wait). Measured 2026-12-07 (per-file CPU of a whole run, -n 2, warm cache):
+# memory 85 s, located_tunnelling 75, data_loss 56, cpu_independence 43, hull_stacks 39,
+# hostile_input 35, jit_cache 35, mesh_tunnelling 32, hostile_schema 29, docs 27,
+# bench 26, action_camera 25, simultaneous_impacts 24, resting_blocks 23,
+# collision_narrowphase 23, foxglove_output 22, coulomb 19, mirror_symmetry 19, loop 15,
+# collision_continuous 14, stepped 14; every other file 13 s or less.
+LONGEST_FIRST = ("test_memory.py", "test_data_loss.py", "test_located_tunnelling.py",
+                 "test_cpu_independence.py", "test_hull_stacks.py", "test_hostile_input.py",
+                 "test_jit_cache.py", "test_mesh_tunnelling.py", "test_hostile_schema.py",
+                 "test_docs.py", "test_bench.py", "test_action_camera.py",
+                 "test_simultaneous_impacts.py", "test_resting_blocks.py",
+                 "test_collision_narrowphase.py", "test_foxglove_output.py",
+                 "test_coulomb.py", "test_mirror_symmetry.py", "test_loop.py",
+                 "test_collision_continuous.py", "test_stepped.py")
 
 
 def pytest_collection_modifyitems(config, items):
