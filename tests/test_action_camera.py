@@ -50,14 +50,22 @@ class Recorder:
         pass
 
 
+_SHOTS: dict = {}  # scenario name -> shots(name): coins, bounce, planar-push and
+# projectile are checked by two or three tests each; the run is the same every time
+
+
 def shots(name: str, tmp_path):
     """(model, [(state, camera)]) of every image `vrsim run --frames` would draw: the
     states the frames writer keeps and the cameras it gives them, as its close() pairs
-    them (without drawing and encoding the images: PNG encoding was a third of this)."""
-    model = compile_model(load_scene(SCENARIOS / f"{name}.yaml"))
-    frames = FramesWriter(model, FramesSpec(tmp_path / name, 1, W, H), Recorder())
-    run(model, make_state(model), render=frames)
-    return model, list(zip(frames.states, frames.cameras()))
+    them (without drawing and encoding the images: PNG encoding was a third of this).
+    Computed once per scenario in this process (the tests only read it)."""
+    if name not in _SHOTS:
+        model = compile_model(load_scene(SCENARIOS / f"{name}.yaml"))
+        frames = FramesWriter(model, FramesSpec(tmp_path / name, 1, W, H), Recorder())
+        run(model, make_state(model), render=frames)
+        _SHOTS[name] = model, tuple(zip(frames.states, frames.cameras()))
+    model, images = _SHOTS[name]
+    return model, list(images)
 
 
 def sizes(model) -> tuple[np.ndarray, np.ndarray]:
