@@ -190,7 +190,7 @@ def _warm_stepped(name: str) -> dict | None:
 
     folder = jit.cache_dir()
     cold = folder is not None and not jit.JIT_DISABLED and \
-        not any(folder.glob("kernels_*/stepped.*.nbi"))
+        not any(folder.glob("kernels*/stepped.*.nbi"))
     _compile_apart(name)
     if not cold:
         return None

@@ -209,6 +209,48 @@ def test_kernels_are_cached_in_vrsims_folder_when_numba_was_imported_first(tmp_p
     assert len(saved) == 1, sorted(str(p) for p in (tmp_path / "base").rglob("*"))
 
 
+COPY_PROBE = """
+from vrsim_cli.kernels import trig
+trig.sin_cos(0.3)
+stats = trig.sin_cos.stats
+print(sum(stats.cache_hits.values()), sum(stats.cache_misses.values()))
+"""
+
+
+def test_a_copy_of_the_same_sources_loads_what_another_copy_compiled(tmp_path):
+    """The cache folder and the stepped compile's marker in it are keyed by the kernels'
+    sources (src-<digest>); numba's entries were keyed by the checkout's path and each
+    file's mtime. A second checkout or install of the same sources (or a `touch` of a
+    kernel file) then found the marker, skipped the compile helper, missed every entry and
+    compiled all kernels in the run's own process. Here two copies of the package at two
+    paths share one cache: the second copy, and the first after its kernel file's mtime
+    moved, load the entry the first compiled (numba's counters of hits and misses)."""
+    import shutil
+
+    import vrsim_cli
+
+    source = os.path.dirname(vrsim_cli.__file__)
+    for copy in ("a", "b"):
+        shutil.copytree(source, tmp_path / copy / "vrsim_cli",
+                        ignore=shutil.ignore_patterns("__pycache__"))
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["VRSIM_CACHE_DIR"] = str(tmp_path / "cache")
+
+    def probe(copy):
+        env["PYTHONPATH"] = str(tmp_path / copy)
+        out = subprocess.run([sys.executable, "-c", COPY_PROBE], env=env, cwd=tmp_path,
+                             capture_output=True, text=True, check=True).stdout.split()
+        return int(out[0]), int(out[1])  # (loaded, compiled)
+
+    assert probe("a") == (0, 1)
+    assert probe("b") == (1, 0), "another path of the same sources compiled again"
+    trig_py = tmp_path / "a" / "vrsim_cli" / "kernels" / "trig.py"
+    later = trig_py.stat().st_mtime + 100.0
+    os.utime(trig_py, (later, later))
+    assert probe("a") == (1, 0), "a touched kernel file compiled again"
+    assert len(list((tmp_path / "cache").glob("src-*/kernels/trig.sin_cos-*.nbi"))) == 1
+
+
 NAMER = """
 import os, sys
 import racemod
