@@ -217,6 +217,7 @@ print(sum(stats.cache_hits.values()), sum(stats.cache_misses.values()))
 """
 
 
+@pytest.mark.skipif(jit.JIT_DISABLED, reason="no compiled code to cache with the JIT off")
 def test_a_copy_of_the_same_sources_loads_what_another_copy_compiled(tmp_path):
     """The cache folder and the stepped compile's marker in it are keyed by the kernels'
     sources (src-<digest>); numba's entries were keyed by the checkout's path and each
