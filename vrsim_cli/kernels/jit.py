@@ -29,6 +29,7 @@ First run: the first compilation of a run prints one line on stderr ("compiling 
 from __future__ import annotations
 
 import contextlib
+import functools
 import gc
 import os
 import sys
@@ -49,24 +50,21 @@ def _default_dir() -> Path:
     return Path(base) / "vrsim" / "numba"
 
 
+_KERNELS = Path(__file__).resolve().parent  # this package's folder: the kernels' sources
+
+
+@functools.lru_cache(maxsize=None)
 def _source_digest() -> str:
     """16 hex digits of sha256 over the kernels' sources (name and bytes of each .py file
-    of this package folder, in name order): ~1 ms."""
+    of this package folder, in name order): ~1 ms, once per process (the cache folder's
+    name and every entry's stamp, `_ContentLocator`)."""
     import hashlib
 
     h = hashlib.sha256()
-    here = Path(__file__).resolve().parent
-    for path in sorted(here.glob("*.py")):
+    for path in sorted(_KERNELS.glob("*.py")):
         h.update(path.name.encode() + b"\0")
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
-
-
-def _source_digest_once() -> str:
-    """`_source_digest`, computed once per process (the folder and every entry's stamp)."""
-    if "digest" not in _CACHE:
-        _CACHE["digest"] = _source_digest()
-    return _CACHE["digest"]
 
 
 def _writable(folder: Path) -> bool:
@@ -84,7 +82,7 @@ def _configure() -> None:
     if "dir" in _CACHE:
         return
     base = _default_dir()
-    folder = base / f"src-{_source_digest_once()}"
+    folder = base / f"src-{_source_digest()}"
     if _writable(folder):
         _CACHE["dir"], _CACHE["note"] = folder, None
         os.environ["NUMBA_CACHE_DIR"] = str(folder)
@@ -429,11 +427,11 @@ class _ContentLocator(caching.UserProvidedCacheLocator):
         self._cache_path = os.path.join(numba.config.CACHE_DIR, "kernels")
 
     def get_source_stamp(self):
-        return _source_digest_once()
+        return _source_digest()
 
     @classmethod
     def from_function(cls, py_func, py_file):
-        if Path(py_file).resolve().parent != Path(__file__).resolve().parent:
+        if Path(py_file).resolve().parent != _KERNELS:
             return None
         return super().from_function(py_func, py_file)
 
