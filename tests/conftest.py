@@ -175,8 +175,8 @@ def _warm_scenario(path: Path) -> None:
     run(model, make_state(model), None)
 
 
-def _warm_stepped(name: str) -> dict | None:
-    """The stepped entry of integrator `name`, compiled as `vrsim run` does it (a helper
+def _warm_stepped() -> dict | None:
+    """The stepped entry (every integrator's), compiled as `vrsim run` does it (a helper
     process, which leaves the marker that later runs look for). When no kernel of
     kernels/stepped.py was in the cache before, returns the helper's peak resident memory
     {"peak_mb": ...}: a first compile's, which test_memory holds to its limit (this
@@ -191,30 +191,23 @@ def _warm_stepped(name: str) -> dict | None:
     folder = jit.cache_dir()
     cold = folder is not None and not jit.JIT_DISABLED and \
         not any(folder.glob("kernels*/stepped.*.nbi"))
-    _compile_apart(name)
+    _compile_apart()
     if not cold:
         return None
     return {"peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
 
 
-# the integrators the stepped tests use (each entry is ~60 s of CPU once: compiled here
-# once per session instead of by several workers and their subprocesses at once)
-STEPPED_INTEGRATORS = ("symplectic-euler", "verlet", "rk4")
-
-
 def warm_up_units() -> list:
-    """(name, callable, prerequisite) of the kernels every session compiles up front. The
-    later stepped entries wait for the first: they share most of its ~150 kernels, which
-    they then load from the cache (~15 s each here) instead of compiling them again side
-    by side with it (~70 s each). A scenario's prerequisite is a callable (`_stepped_of`):
-    the stepped entry the scenario runs on, if any."""
+    """(name, callable, prerequisite) of the kernels every session compiles up front: the
+    stepped entry (~150 kernels, ~130 s of CPU once: compiled here once per session
+    instead of by several workers and their subprocesses at once), every integrator's
+    free-flight kernel, every scenario's kernels. A scenario's prerequisite is a callable
+    (`_stepped_of`): the stepped entry, if the scenario runs on it."""
     from functools import partial
 
     from vrsim_cli.kernels.dynamics import INTEGRATOR_CODES
 
-    first = f"stepped-{STEPPED_INTEGRATORS[0]}"
-    return [(f"stepped-{name}", partial(_warm_stepped, name), None if k == 0 else first)
-            for k, name in enumerate(STEPPED_INTEGRATORS)] + \
+    return [("stepped", _warm_stepped, None)] + \
         [(f"integrator-{name}", partial(_warm_integrator, name), None)
          for name in INTEGRATOR_CODES] + \
         [(f"scenario-{path.stem}", partial(_warm_scenario, path), partial(_stepped_of, path))
@@ -222,15 +215,13 @@ def warm_up_units() -> list:
 
 
 def _stepped_of(path: Path) -> str | None:
-    """The warm-up unit of the stepped entry scenario `path` runs on (its first compile is
-    that unit's work, made under `loop._compile_apart`'s lock), or None."""
+    """The warm-up unit of the stepped entry if scenario `path` runs on it (its first
+    compile is that unit's work, made under `loop._compile_apart`'s lock), or None."""
     from vrsim_cli.api import load
     from vrsim_cli.loop import _stepped
 
     model = load(path, duration=0.2)
-    if not _stepped(model) or model.integrator not in STEPPED_INTEGRATORS:
-        return None
-    return f"stepped-{model.integrator}"
+    return "stepped" if _stepped(model) else None
 
 
 def warm_up(lock_dir: Path, worker: int, workers: int, poll_s: float = 0.2) -> list[str]:

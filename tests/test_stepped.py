@@ -603,31 +603,59 @@ def test_solves_that_stop_at_a_fixed_point_give_the_bits_of_the_full_count(steps
         assert out[0] == out[1], iterations
 
 
-@pytest.mark.parametrize("integ", ["euler", "symplectic-euler", "verlet", "rk4", "dopri5"])
-def test_a_stepped_entry_compiles_only_its_integrator(integ):
-    """First-compile time (issue 19: a first stepped run took 171-224 s under load): the
-    stepped entry of one integrator must not type the other integrators' steppers. numba
-    prunes branches on the closure's constants before typing; this runs its front end and
-    that pruning (no compile) and lists the `step_*` functions left in reachable code:
-    the scene's integrator, and for Euler symplectic Euler too (the step of its bodies
-    that took a resting impulse: Euler's positions do not see the step's forces). Before
-    the fix all five were reachable."""
-    from numba.core import ir
-    from numba.core.analysis import compute_cfg_from_blocks, dead_branch_prune
-    from numba.core.compiler import run_frontend
+def test_one_stepped_entry_serves_every_integrator(write_scene):
+    """First-compile time: the stepped step is one compiled entry for every integrator
+    (kernels/stepped.py reads the integrator from the model at run time). When it was one
+    entry per integrator, a second integrator compiled the whole step again (25-30 s of
+    CPU with the callees cached, ~130 s without), and the suite did it four times on an
+    empty cache. After a stepped run of one integrator, runs of the other four compile
+    nothing of kernels/stepped.py, and all five ran on the same kernel."""
+    from numba.core import event
 
-    from vrsim_cli.kernels import dynamics as kd
-    from vrsim_cli.kernels import stepped as ks
+    from vrsim_cli.kernels import jit
+    from vrsim_cli.loop import prepare, run
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import load_scene
 
-    code = kd.INTEGRATOR_CODES[integ]
-    fn = ks._make_entry(code, (True,) * len(ks.PAIR_KINDS)).py_func
-    fir = run_frontend(fn)
-    dead_branch_prune(fir, [None] * fn.__code__.co_argcount)
-    cfg = compute_cfg_from_blocks(fir.blocks)
-    live = set(fir.blocks) - set(cfg.dead_nodes())
-    steppers = {inst.value.attr for label in live for inst in fir.blocks[label].body
-                if isinstance(inst, ir.Assign) and isinstance(inst.value, ir.Expr)
-                and inst.value.op == "getattr" and inst.value.attr.startswith("step_")}
-    own = {"euler": "step_euler", "symplectic-euler": "step_symplectic",
-           "verlet": "step_verlet", "rk4": "step_rk4", "dopri5": "step_dopri5"}[integ]
-    assert steppers == ({own, "step_symplectic"} if integ == "euler" else {own})
+    if jit.JIT_DISABLED:
+        pytest.skip("the JIT is off: nothing is compiled")
+
+    class Compiles(event.Listener):
+        def __init__(self):
+            self.names = []
+
+        def on_start(self, ev):
+            fn = ev.data["dispatcher"].py_func
+            if fn.__module__ == "vrsim_cli.kernels.stepped":
+                self.names.append(fn.__qualname__)
+
+        def on_end(self, ev):
+            pass
+
+    kernels = []
+    watch = Compiles()
+    for k, integ in enumerate(["verlet", "euler", "symplectic-euler", "rk4", "dopri5"]):
+        path = write_scene(f"""
+            vrsim: 1
+            duration: 0.05
+            dt: 0.01
+            integrator: {integ}
+            collision: {{impacts: stepped}}
+            bodies:
+              - {{name: floor, type: static, shape: {{type: plane, normal: [0, 0, 1]}}}}
+              - {{name: box, mass: 1, position: [0, 0, 0.15], velocity: [0, 0, -1],
+                  shape: {{type: box, size: [0.2, 0.3, 0.3]}}}}
+            """, f"{integ}.yaml")
+        model = compile_model(load_scene(path))
+        if k > 0:  # the first run compiled or loaded the entry
+            event.register("numba:compile", watch)
+        try:
+            prepare(model)
+            run(model, make_state(model), None)
+        finally:
+            if k > 0:
+                event.unregister("numba:compile", watch)
+        kernels.append(model.cache["stepped"]["kernel"])
+    assert watch.names == []
+    assert all(kernel is kernels[0] for kernel in kernels)

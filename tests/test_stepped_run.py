@@ -135,7 +135,7 @@ def test_the_many_steps_kernel_has_the_same_cache_key_in_every_process():
             "from numba.core.registry import cpu_target\n"
             "kinds = [False] * len(ks.PAIR_KINDS)\n"
             "kinds[int(__import__('sys').argv[1])] = True\n"
-            "d = ks.run_entry(kd.VERLET, tuple(kinds))\n"
+            "d = ks.run_entry(tuple(kinds))\n"
             "print(d._cache._index_key((), cpu_target.target_context.codegen())[2])\n")
 
     def key(which):

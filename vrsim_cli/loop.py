@@ -191,7 +191,7 @@ def prepare(model: Model, say: Callable[..., None] | None = None) -> None:
     if _stepped(model):  # the stepped stage integrates the bodies itself
         from vrsim_cli.stages.collision import stepped
 
-        if not _compile_apart(model.integrator):
+        if not _compile_apart():
             return  # a signal came: the caller's `held` block acts on it
         stepped.prepare(model, dynamics)
     else:
@@ -204,23 +204,23 @@ def prepare(model: Model, say: Callable[..., None] | None = None) -> None:
 
 
 # A stepped scene's first compile is made by a helper process. The stepped kernels are
-# one entry per integrator whatever the scene (kernels/stepped.py), and numba keeps most
+# one entry whatever the scene and its integrator (kernels/stepped.py), and numba keeps most
 # of what a first compile of them builds (~0.4 GB: types, IR and LLVM modules of ~150
 # kernels) until the process ends: compiled in the run's own process, it added to the
 # memory of the scene (the largest particle scenes validation accepts peaked at 1.1-1.3
-# GB). The helper compiles the entry on a small scene of the same integrator into the
-# disk cache and exits, before this scene's state and contacts exist; the run then loads
-# it (the entry's argument types do not depend on the scene).
+# GB). The helper compiles the entry on a small scene into the disk cache and exits,
+# before this scene's state and contacts exist; the run then loads it (the entry's
+# argument types depend neither on the scene nor on its integrator).
 _COMPILE_SCENE = """vrsim: 1
 duration: 0.03
 frame_rate: 100
 dt: 0.01
-integrator: {integrator}
-collision: {{impacts: stepped}}
+integrator: verlet
+collision: {impacts: stepped}
 bodies:
-  - {{name: floor, type: static, shape: {{type: plane, normal: [0, 0, 1]}}}}
-  - {{name: box, mass: 1, position: [0, 0, 0.2], shape: {{type: box, size: [0.2, 0.3, 0.4]}}}}
-  - {{name: ball, mass: 1, position: [0.5, 0, 0.1], shape: {{type: sphere, radius: 0.1}}}}
+  - {name: floor, type: static, shape: {type: plane, normal: [0, 0, 1]}}
+  - {name: box, mass: 1, position: [0, 0, 0.2], shape: {type: box, size: [0.2, 0.3, 0.4]}}
+  - {name: ball, mass: 1, position: [0.5, 0, 0.1], shape: {type: sphere, radius: 0.1}}
 """
 
 
@@ -230,27 +230,26 @@ bodies:
 STEPPED_COMPILE_NOTE = "stepped impacts: about a minute or two the first time"
 
 
-def _compile_marker(integrator: str):
-    """The file that says the stepped entry of `integrator` is in the disk cache for this
-    CPU and Python; None when there is no cache folder or the JIT is off."""
+def _compile_marker():
+    """The file that says the stepped entry is in the disk cache for this CPU and Python;
+    None when there is no cache folder or the JIT is off."""
     from vrsim_cli.kernels import jit
 
     folder = jit.cache_dir()
     if folder is None or jit.JIT_DISABLED:
         return None
-    return folder / f"stepped-{integrator}-{jit.host_key()}.compiled"
+    return folder / f"stepped-{jit.host_key()}.compiled"
 
 
-def _compile_apart(integrator: str) -> bool:
-    """Compile the stepped entry of `integrator` in a helper process, unless the cache has
-    it. False when a signal came meanwhile (`interrupts.pending`: the helper is killed and
+def _compile_apart() -> bool:
+    """Compile the stepped entry in a helper process, unless the cache has it. False when a signal came meanwhile (`interrupts.pending`: the helper is killed and
     the caller's `held` block acts on the signal). If the helper fails, the run compiles
     for itself, as it would without it."""
     import os
 
     from vrsim_cli.kernels import jit
 
-    marker = _compile_marker(integrator)
+    marker = _compile_marker()
     if marker is None or marker.exists() or os.environ.get("VRSIM_COMPILE_APART") == "0":
         return True
     jit.announce_compile(STEPPED_COMPILE_NOTE)
@@ -262,7 +261,7 @@ def _compile_apart(integrator: str) -> bool:
         if marker.exists():  # compiled by the run we waited for: load it
             jit.compiled_apart(time.perf_counter() - started)
             return True
-        return _compile_helper(integrator, started)
+        return _compile_helper(started)
     finally:
         if lock is not None:
             os.close(lock)  # closing the file releases its lock
@@ -304,7 +303,7 @@ def _compile_lock(marker):
         time.sleep(0.05)
 
 
-def _compile_helper(integrator: str, started: float) -> bool:
+def _compile_helper(started: float) -> bool:
     """`_compile_apart`'s helper process, waited for; False when a signal came."""
     import os
     import subprocess
@@ -315,8 +314,7 @@ def _compile_helper(integrator: str, started: float) -> bool:
 
     proc = subprocess.Popen(  # it inherits the cache folder (jit exports its base)
         [sys.executable, "-c", "import sys; from vrsim_cli.loop import compile_main; "
-         "sys.exit(compile_main(sys.argv[1], int(sys.argv[2])))", integrator,
-         str(os.getpid())],
+         "sys.exit(compile_main(int(sys.argv[1])))", str(os.getpid())],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL, start_new_session=True)  # a terminal's ^C is ours
     try:
@@ -335,7 +333,7 @@ def _compile_helper(integrator: str, started: float) -> bool:
     return True
 
 
-def compile_main(integrator: str, parent: int | None = None) -> int:
+def compile_main(parent: int | None = None) -> int:
     """The helper process of `_compile_apart`: run the small scene, then write the marker
     (atomically). Exit 0 when the entry is compiled and cached. `parent`: the run's pid,
     as the run passed it (a run killed while Python started here is already gone when
@@ -374,7 +372,7 @@ def compile_main(integrator: str, parent: int | None = None) -> int:
     from vrsim_cli.scene.spec import parse_scene
     from vrsim_cli.stages.collision import stepped
 
-    model = compile_model(parse_scene(_COMPILE_SCENE.format(integrator=integrator)))
+    model = compile_model(parse_scene(_COMPILE_SCENE))
     if not (_stepped(model) and stepped.batched(model, dynamics)):
         return 1
     stepped.prepare(model, dynamics)  # the run kernel, and the step kernel it calls
@@ -387,7 +385,7 @@ def compile_main(integrator: str, parent: int | None = None) -> int:
         state = stepped.step(model, state, state.replace(
             step=state.step + 1, t=(state.step + 1) * model.dt), dynamics)
         check_state(model, state)
-    marker = _compile_marker(integrator)
+    marker = _compile_marker()
     if marker is None:
         return 1
     partial = marker.with_name(f".{marker.name}.{os.getpid()}")

@@ -231,9 +231,10 @@ event.register("numba:compile", _WATCH)
 class _UnrepeatedIds:
     """numba names a compiled function `qualname$<uid>` (its machine symbol), the uid
     from a counter that starts at 1 in every process. Two processes that compile the
-    same steps (the compile helper run per integrator, a sweep's forked workers, which
-    inherit the counter) give different variants of one closure kernel (the stepped
-    step of symplectic-euler and of rk4) the same symbol; a later process that loads
+    same steps (compile helpers, a sweep's forked workers, which inherit the counter)
+    give different variants of one closure kernel (the free-flight run of two
+    integrators; the stepped step of two, when it was one per integrator) the same
+    symbol; a later process that loads
     both from the cache binds calls to the first one loaded (numba/numba#10486). A CI
     run computed rk4 and verlet scenes with symplectic-euler's step that way (box
     rebounds exactly symplectic-euler's). Drawn at random, a uid is never repeated:

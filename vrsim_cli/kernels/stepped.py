@@ -2970,9 +2970,14 @@ def find_stops(C, k, dt, rb, rp, prm, n, inv_m, U, stopped):
 
 # ----------------------------------------------------------------------------- the entry
 #
-# One compiled entry per integrator and set of shape pairs, made on first use (as
-# kernels.dynamics.entry): the integrator and the pair kinds the scene can have are
-# constants of the closure (the stage asks for every pair kind: one entry per integrator).
+# One compiled entry per set of shape pairs, made on first use: the pair kinds the scene
+# can have are constants of the closure (the stage asks for every pair kind: one entry for
+# every stepped scene). The integrator is read from the model (P_INTEGRATOR) at run time:
+# pruned to the scene's integrator, each integrator was another first compile of the
+# whole step (~130 s of CPU for the first, 25-30 s for each further one whose callees the
+# cache already held), which a user who tried a second integrator met again and the suite
+# paid four times on an empty cache; the other integrators' steps add ~20 s to the one
+# first compile (docs/benchmarks.md, "First compile").
 
 PAIR_KINDS = ("sphere-sphere", "plane-sphere", "box-sphere", "capsule-sphere",
               "cylinder-sphere", "plane-box", "plane-cylinder", "plane-capsule",
@@ -2980,23 +2985,16 @@ PAIR_KINDS = ("sphere-sphere", "plane-sphere", "box-sphere", "capsule-sphere",
 _ENTRIES: dict = {}
 
 
-def entry(integ: int, kinds: tuple):
-    """The stepped-step kernel of integrator `integ` (kernels.dynamics codes) for the
-    pair kinds `kinds` (a bool per PAIR_KINDS)."""
-    key = (integ, tuple(bool(x) for x in kinds))
+def entry(kinds: tuple):
+    """The stepped-step kernel for the pair kinds `kinds` (a bool per PAIR_KINDS), every
+    integrator."""
+    key = tuple(bool(x) for x in kinds)
     if key not in _ENTRIES:
-        _ENTRIES[key] = _make_entry(*key)
+        _ENTRIES[key] = _make_entry(key)
     return _ENTRIES[key]
 
 
-def _make_entry(integ: int, kinds: tuple):
-    body_frame = integ == kd.RK4 or integ == kd.DOPRI5
-    # the integrator as booleans of the closure: numba prunes `if EU:` before typing, so
-    # only the scene's integrator is compiled (it cannot prune `integ == kd.EULER`, an
-    # attribute of a module, and typed all five: 105 -> 81 s CPU of a first stepped run)
-    EU, SE, VE, R4 = (integ == kd.EULER, integ == kd.SYMPLECTIC_EULER,
-                      integ == kd.VERLET, integ == kd.RK4)
-    MEAN = not (EU or SE)  # positions move by the mean velocity (`_target`)
+def _make_entry(kinds: tuple):
     SS, PS, BS, CS, YS, PB, PY, PC, CC, BC, BB = kinds
 
     @kernel
@@ -3008,6 +3006,11 @@ def _make_entry(integ: int, kinds: tuple):
         states of kinematic bodies (the scene graph's), used when KIN has rows. Returns
         (OUT, k, h_prop): the contacts (outputs) and dopri5's step proposal."""
         n, r, ng = S.shape[0], RS.shape[0], gf.shape[0]
+        integ = int(kd.param(mf, kd.P_INTEGRATOR))
+        EU, SE, VE, R4 = (integ == kd.EULER, integ == kd.SYMPLECTIC_EULER,
+                          integ == kd.VERLET, integ == kd.RK4)
+        MEAN = not (EU or SE)  # positions move by the mean velocity (`_target`)
+        body_frame = integ == kd.RK4 or integ == kd.DOPRI5
         dt, tol = prm[PR_DT], prm[PR_TOL]
         step = int(prm[PR_STEP])
         t = prm[PR_T]
@@ -3346,11 +3349,11 @@ UNIT_FLAG = 0.5e-9  # |q|^2 - 1 that stops a run for the loop's own check (it fa
 _RUNS: dict = {}
 
 
-def run_entry(integ: int, kinds: tuple):
-    """The many-steps kernel of the stepped step `entry(integ, kinds)`."""
-    key = (integ, tuple(bool(x) for x in kinds))
+def run_entry(kinds: tuple):
+    """The many-steps kernel of the stepped step `entry(kinds)`."""
+    key = tuple(bool(x) for x in kinds)
     if key not in _RUNS:
-        _RUNS[key] = _make_run(entry(*key))
+        _RUNS[key] = _make_run(entry(key))
     return _RUNS[key]
 
 

@@ -67,8 +67,8 @@ def tables(model: Model, dynamics) -> dict:
     if (CYLINDER in others) and (others & {BOX, CAPSULE}) or (kind == CYLINDER).sum() > 1:
         python |= kind == CYLINDER
     gf[:, kc.G_PYTHON] = python
-    # Every pair kind, whatever the scene has: one compiled entry per integrator, shared
-    # by every stepped scene. Pruned to the scene's kinds, each new mix of shapes was
+    # Every pair kind, whatever the scene has: one compiled entry (every integrator's
+    # too, kernels/stepped.py), shared by every stepped scene. Pruned to the scene's kinds, each new mix of shapes was
     # another first compile of the whole step (~60 s of CPU), which a user met scene
     # after scene (and the suite ~20 times on an empty cache); the pair functions a
     # scene cannot reach cost ~10 s of CPU once. Results are the same bits: a kind
@@ -107,7 +107,7 @@ def tables(model: Model, dynamics) -> dict:
     r = 0 if model.rigid is None else model.rigid.n_rot
     animated = model.animation is not None and model.animation.has_motion
     found = dict(gf=gf, rb=rb, rp=rp, prm=prm, python=np.flatnonzero(python),
-                 kernel=ks.entry(integ, kinds), kinds=kinds, mf=dynamics.packed(model),
+                 kernel=ks.entry(kinds), kinds=kinds, mf=dynamics.packed(model),
                  work=kd.make_work(n, r, integ), S=np.zeros((n, kd.S_SIZE)),
                  RS=np.zeros((r, kd.RS_SIZE)), S1=np.zeros((n, kd.S_SIZE)),
                  RS1=np.zeros((r, kd.RS_SIZE)), animated=animated,
@@ -298,7 +298,7 @@ def run(model: Model, state: State, count: int, dynamics):
     guard = bool(mf[int(mf[kd.H_PARAM]) + kd.P_ENERGY_GUARD] != 0.0)
     set_base = rigid is not None and bool(rigid.energy_guard)
     wb, wr, wm, kS = tb["work"]
-    kernel = ks.run_entry(kd.INTEGRATOR_CODES[model.integrator], tb["kinds"])
+    kernel = ks.run_entry(tb["kinds"])
     got = kernel(mf, tb["gf"], tb["rb"], tb["rp"], tb["prm"], state.step, count,
                  model.n_steps, model.steps_per_frame, state.t, state.ode_step, bS, bRS,
                  *prev, tb["no_rows"], tb["no_kin"], tb["no_kin_rs"], wb, wr, wm, kS, base,
