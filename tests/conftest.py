@@ -177,29 +177,37 @@ def _warm_scenario(path: Path) -> None:
 
 def _warm_stepped() -> dict | None:
     """The stepped entry (every integrator's), compiled as `vrsim run` does it (a helper
-    process, which leaves the marker that later runs look for). When no kernel of
-    kernels/stepped.py was in the cache before, returns the helper's peak resident memory
-    {"peak_mb": ...}: a first compile's, which test_memory holds to its limit (this
-    process's largest waited-for child: at least the helper's own peak). The other
-    workers fill the cache meanwhile, and the helper loads the kernels of theirs that the
-    stepped entry calls: it peaked at 475 MB so here, 523 MB with a cache of its own."""
-    import resource
+    process, which leaves the marker that later runs look for), from a process of its own
+    that reports its children's peak: the helper's alone (this worker's tests run
+    meanwhile, `warm_up`, and their subprocesses would count in the worker's own
+    RUSAGE_CHILDREN). When no kernel of kernels/stepped.py was in the cache before,
+    returns the helper's peak resident memory {"peak_mb": ...}: a first compile's, which
+    test_memory holds to its limit. The other workers fill the cache meanwhile, and the
+    helper loads the kernels of theirs that the stepped entry calls."""
+    import subprocess
+    import sys
 
     from vrsim_cli.kernels import jit
-    from vrsim_cli.loop import _compile_apart
 
     folder = jit.cache_dir()
     cold = folder is not None and not jit.JIT_DISABLED and \
         not any(folder.glob("kernels*/stepped.*.nbi"))
-    _compile_apart()
+    code = ("import resource, sys\n"
+            "from vrsim_cli.loop import _compile_apart\n"
+            "_compile_apart()\n"
+            "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=1800)
+    if proc.returncode != 0:
+        raise RuntimeError(f"the stepped entry's warm-up failed:\n{proc.stderr}")
     if not cold:
         return None
-    return {"peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
+    return {"peak_mb": int(proc.stdout.split()[-1]) / 1024}
 
 
 def warm_up_units() -> list:
     """(name, callable, prerequisite) of the kernels every session compiles up front: the
-    stepped entry (~150 kernels, ~130 s of CPU once: compiled here once per session
+    stepped entry (~150 kernels, ~170 s of CPU once: compiled here once per session
     instead of by several workers and their subprocesses at once), every integrator's
     free-flight kernel, every scenario's kernels. A scenario's prerequisite is a callable
     (`_stepped_of`): the stepped entry, if the scenario runs on it."""
@@ -228,12 +236,15 @@ def warm_up(lock_dir: Path, worker: int, workers: int, poll_s: float = 0.2) -> l
     """Compile (or load) every unit of `warm_up_units` that no other worker of this
     session has: each worker goes down the list (worker k starts k/n of the way down, so
     the workers start on different units) taking every unit whose lock is free and whose
-    prerequisite is done. It returns (to its tests) once every unit left is being built by
-    another worker or waits for a prerequisite another worker builds: that worker goes on
-    to the units that wait for it, and a test that needs a stepped entry meanwhile waits
-    for its compile (`loop._compile_apart`'s lock) rather than compiling it too. Returns
-    the names this worker ran."""
+    prerequisite is done; a unit of IN_BACKGROUND is built by a thread while the worker
+    goes on. It returns (to its tests) once every unit left is being built (by another
+    worker or this one's thread) or waits for a prerequisite being built: the scenarios
+    on the stepped entry are then left to the tests that run them (the entry and every
+    integrator's kernel are their kernels), and a test that needs the entry meanwhile
+    waits for its compile (`loop._compile_apart`'s lock) rather than compiling it too.
+    Returns the names this worker took."""
     import fcntl
+    import threading
     import time
 
     units = warm_up_units()
@@ -258,6 +269,15 @@ def warm_up(lock_dir: Path, worker: int, workers: int, poll_s: float = 0.2) -> l
                 return True
             return False  # closing the file releases the probe's lock
 
+    def finish(name, build, lock):
+        try:
+            record = build()
+            if record is not None:  # what the unit measured (`warm_up_record`)
+                (lock_dir / f"{name}.json").write_text(json.dumps(record))
+            (lock_dir / f"{name}.done").touch()
+        finally:
+            lock.close()  # releases the unit's lock
+
     ran = []
     while True:
         left = [unit for unit in units if not done(unit[0])]
@@ -269,21 +289,34 @@ def warm_up(lock_dir: Path, worker: int, workers: int, poll_s: float = 0.2) -> l
             if after is not None and not done(after):
                 others = others and held(after)
                 continue
-            with open(lock_dir / f"{name}.lock", "a+") as lock:
-                try:
-                    fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except BlockingIOError:
-                    continue  # another worker builds it
-                if not done(name):
-                    record = build()
-                    if record is not None:  # what the unit measured (`warm_up_record`)
-                        (lock_dir / f"{name}.json").write_text(json.dumps(record))
-                    (lock_dir / f"{name}.done").touch()
-                    ran.append(name)
-                    others = False  # the list is read again: more may be free now
+            lock = open(lock_dir / f"{name}.lock", "a+")
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                lock.close()
+                continue  # another worker builds it (or this one's thread)
+            if done(name):
+                lock.close()
+                continue
+            ran.append(name)
+            if name in IN_BACKGROUND:  # a helper process compiles: this worker goes on
+                threading.Thread(target=finish, args=(name, build, lock),
+                                 name=f"warm-up {name}").start()
+            else:
+                finish(name, build, lock)
+                others = False  # the list is read again: more may be free now
         if others:
             return ran
         time.sleep(poll_s)
+
+
+# Units whose work is a helper process (the stepped entry's first compile: ~170 s of one
+# core on an empty cache): built in a thread that waits for it, while the worker goes on
+# to the other units and to its tests. Waiting in the foreground, the worker held a core
+# idle and the other worker often waited too (its first tests needed the entry): on an
+# empty cache both cores now work from the start, and only tests that need the entry
+# wait for it (`loop._compile_apart`'s lock).
+IN_BACKGROUND = {"stepped"}
 
 
 WARM_UP_FOLDER = "vrsim-warm-up"  # in the session's temporary folder
