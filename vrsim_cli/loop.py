@@ -224,10 +224,11 @@ bodies:
 """
 
 
-# said with the compile notice: the stepped entry is the largest compile (~150 kernels;
-# 72-86 s for the first integrator on this project's 2-core AMD EPYC machine, see
-# docs/benchmarks.md), and a user who hears nothing for a minute takes the run for hung
-STEPPED_COMPILE_NOTE = "stepped impacts: about a minute or two the first time"
+# said with the compile notice: the stepped entry is the largest compile (~260 kernels,
+# every integrator's step; 171 s on an idle core of this project's 2-core AMD EPYC
+# machine, see docs/benchmarks.md), and a user who hears nothing for a minute takes the
+# run for hung
+STEPPED_COMPILE_NOTE = "stepped impacts: about three minutes the first time"
 
 
 def _compile_marker():
