@@ -93,9 +93,11 @@ def report(name, sweep, lam):
     ln = lam[0::3]
     loaded = ln > 1e-12 * max(ln.max(), 1e-300)
     slip = np.hypot(w[1::3], w[2::3])[loaded]
+    edge = np.hypot(lam[1::3], lam[2::3])[loaded] >= (1.0 - 1e-6) * MU * ln[loaded]
     print(f"  {name:8s} {sweep:5d} sweeps: max |w_t| of loaded contacts "
           f"{slip.max() if len(slip) else 0.0:.2e} m/s, approach past target "
-          f"{max(-w[0::3].min(), 0.0):.2e} m/s", flush=True)
+          f"{max(-w[0::3].min(), 0.0):.2e} m/s, {edge.sum()} of {loaded.sum()} loaded "
+          "on their cone's edge", flush=True)
 
 
 PHI = np.linspace(0.0, 2.0 * math.pi, 256, endpoint=False)
@@ -126,7 +128,8 @@ def cone_block(B, c, mu):
 
 marks = {2 ** p for p in range(3, 13)} | {SWEEPS}
 lam = np.zeros(3 * m)  # coulomb: the kernel's split rows
-for sweep in range(1, SWEEPS + 1):
+ONLY = os.environ.get("ONLY", "coulomb pyramid block desaxce").split()
+for sweep in range(1, SWEEPS + 1 if "coulomb" in ONLY else 1):
     for r in range(m):
         i0 = 3 * r
         lam[i0] = max(0.0, lam[i0] - (A[i0] @ lam + b[i0]) / A[i0, i0])
@@ -138,12 +141,12 @@ for sweep in range(1, SWEEPS + 1):
         report("coulomb", sweep, lam)
 H, g = P.T @ A @ P, P.T @ b
 x = np.zeros(m * S)  # pyramid: the convex problem on the generators' weights
-for sweep in range(1, SWEEPS + 1):
+for sweep in range(1, SWEEPS + 1 if "pyramid" in ONLY else 1):
     for e in range(m * S):
         x[e] = max(0.0, x[e] - (H[e] @ x + g[e]) / H[e, e])
     if sweep in marks:
         report("pyramid", sweep, P @ x)
-for name in ("block", "desaxce"):
+for name in [name for name in ("block", "desaxce") if name in ONLY]:
     lam = np.zeros(3 * m)
     for sweep in range(1, SWEEPS + 1):
         for r in range(m):
