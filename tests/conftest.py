@@ -83,10 +83,10 @@ def pytest_configure(config):
 # workers free up, so long files first leaves only short ones for the end and the workers
 # finish together, rather than one running a long file alone while the other idles.
 # With two workers, gw0 is handed the 1st file and gw1 the 2nd, then each the next one
-# when it has at most two tests left. On a fresh machine gw0 takes the first stepped
-# compile of the warm-up (~70 s) and gw1 starts its tests once the rest of the warm-up is
-# done (~35 s), so the 2nd file is a long one that needs no stepped entry (which would
-# make gw1 wait). Measured 2026-12-07 (per-file CPU of a whole run, -n 2, warm cache):
+# when it has at most two tests left. On a fresh machine the stepped entry's first
+# compile (~170 s of a helper process) runs beside both workers' tests (`warm_up`,
+# IN_BACKGROUND); the 2nd file is a long one that needs no stepped entry, so gw1 does
+# not wait for it. Measured 2026-12-07 (per-file CPU of a whole run, -n 2, warm cache):
 # memory 85 s, located_tunnelling 75, data_loss 56, cpu_independence 43, hull_stacks 39,
 # hostile_input 35, jit_cache 35, mesh_tunnelling 32, hostile_schema 29, docs 27,
 # bench 26, action_camera 25, simultaneous_impacts 24, resting_blocks 23,

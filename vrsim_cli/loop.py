@@ -204,8 +204,8 @@ def prepare(model: Model, say: Callable[..., None] | None = None) -> None:
 
 
 # A stepped scene's first compile is made by a helper process. The stepped kernels are
-# one entry whatever the scene and its integrator (kernels/stepped.py), and numba keeps most
-# of what a first compile of them builds (~0.4 GB: types, IR and LLVM modules of ~150
+# one entry whatever the scene and its integrator (kernels/stepped.py), and numba keeps
+# most of what a first compile of them builds (~0.4 GB: types, IR and LLVM modules of ~150
 # kernels) until the process ends: compiled in the run's own process, it added to the
 # memory of the scene (the largest particle scenes validation accepts peaked at 1.1-1.3
 # GB). The helper compiles the entry on a small scene into the disk cache and exits,
@@ -243,8 +243,9 @@ def _compile_marker():
 
 
 def _compile_apart() -> bool:
-    """Compile the stepped entry in a helper process, unless the cache has it. False when a signal came meanwhile (`interrupts.pending`: the helper is killed and
-    the caller's `held` block acts on the signal). If the helper fails, the run compiles
+    """Compile the stepped entry in a helper process, unless the cache has it. False when
+    a signal came meanwhile (`interrupts.pending`: the helper is killed and the caller's
+    `held` block acts on the signal). If the helper fails, the run compiles
     for itself, as it would without it."""
     import os
 

@@ -234,8 +234,8 @@ class _UnrepeatedIds:
     same steps (compile helpers, a sweep's forked workers, which inherit the counter)
     give different variants of one closure kernel (the free-flight run of two
     integrators; the stepped step of two, when it was one per integrator) the same
-    symbol; a later process that loads
-    both from the cache binds calls to the first one loaded (numba/numba#10486). A CI
+    symbol; a later process that loads both from the cache binds calls to the first one
+    loaded (numba/numba#10486). A CI
     run computed rk4 and verlet scenes with symplectic-euler's step that way (box
     rebounds exactly symplectic-euler's). Drawn at random, a uid is never repeated:
     the code is the same, only its name differs, and cache keys do not use it."""

@@ -67,10 +67,11 @@ def tables(model: Model, dynamics) -> dict:
     if (CYLINDER in others) and (others & {BOX, CAPSULE}) or (kind == CYLINDER).sum() > 1:
         python |= kind == CYLINDER
     gf[:, kc.G_PYTHON] = python
-    # Every pair kind, whatever the scene has: one compiled entry (every integrator's
-    # too, kernels/stepped.py), shared by every stepped scene. Pruned to the scene's kinds, each new mix of shapes was
-    # another first compile of the whole step (~60 s of CPU), which a user met scene
-    # after scene (and the suite ~20 times on an empty cache); the pair functions a
+    # Every pair kind, whatever the scene has: one compiled entry (for every integrator
+    # too, kernels/stepped.py), shared by every stepped scene. Pruned to the scene's
+    # kinds, each new mix of shapes was another first compile of the whole step (~60 s
+    # of CPU), which a user met scene after scene (and the suite ~20 times on an empty
+    # cache); the pair functions a
     # scene cannot reach cost ~10 s of CPU once. Results are the same bits: a kind
     # only gates narrow-phase calls that the scene's geometry types never reach.
     kinds = (True,) * len(ks.PAIR_KINDS)
