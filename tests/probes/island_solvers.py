@@ -24,6 +24,11 @@
 # multipliers (INNER 100, GTOL 1e-13): 4e-15 m/s, all 112 contacts loaded. The inner
 # rounds must end when Newton has converged for the shifted problem (a cap of 8 steps a
 # round took 10 rounds, 69 steps; a gradient test relative to the first stalled at 4e-10).
+# PILE=PATH (pile_class.py SEED 0 --save PATH): one step of a saved pile instead. rk4 202
+# at 6 s (87 contacts, 120 velocities): the kernel's rows from zero cycle at 5e-3 m/s;
+# Newton (EPS 1e-8) did not converge in 100 steps a round (slip 1e-4 .. 7e-3 m/s after
+# three): inconclusive; the all-held LP is infeasible there (some contacts must open),
+# so it is not the oracle for piles.
 """Five solves of one large island's resting contacts, against statics (issue 48 (d))."""
 import math
 import os
@@ -57,11 +62,26 @@ def _hook(K, k, dt, iterations, U, Wv, until_fixed):
 
 
 ks.rest = _hook
+if os.environ.get("PILE"):  # a pile saved by pile_class.py --save: one step from there
+    import pickle
+
+    from vrsim_cli.loop import run
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.scene.spec import parse_scene
+
+    with open(os.environ["PILE"], "rb") as f:
+        _src, _state = pickle.load(f)
+    _model = compile_model(parse_scene(_src))
+    _stops = iter((False, True))
+    run(_model, _state, resume=True, should_stop=lambda: next(_stops))
+    DT = _model.dt
+    MU = float(calls[0][0][0, ks.K_MU])  # every box's and the floor's
+    NEED = MU
 bodies = "\n".join(
     f"  - {{name: s{k}, mass: 1.0, position: {[float(x) for x in p]}, shape: {{type: sphere, "
     f"radius: {R_S}}}, material: {{friction: {MU!r}, restitution: 0}}}}"
     for k, p in enumerate(centres(R_S, LAYERS)))
-vrsim_cli.simulate(vrsim_cli.load(
+calls or vrsim_cli.simulate(vrsim_cli.load(
     f"vrsim: 1\nduration: 1.0\nframe_rate: {1 / DT!r}\ndt: {DT!r}\nintegrator: verlet\n"
     "gravity: [0, -9.81, 0]\ncollision: {}\nbodies:\n  - {name: ground, type: static, "
     "shape: {type: plane, normal: [0, 1, 0]}, material: {friction: " + repr(MU)
@@ -82,7 +102,7 @@ for r, i in enumerate(rows):
     vn, v1, v2 = ks.rel3(K, i, U0, W0)
     b[3 * r:3 * r + 3] = (vn - ks._target(K, i, DT), v1 + K[i, ks.K_V0T],
                           v2 + K[i, ks.K_V0T + 1])
-print(f"{len(centres(R_S, LAYERS))} spheres, mu {MU:.4f}: {m} contacts, {3 * m} rows, "
+print(f"{os.environ.get('PILE') or len(centres(R_S, LAYERS))} (bodies), mu {MU:.4f}: {m} contacts, {3 * m} rows, "
       f"rank {np.linalg.matrix_rank(A)}")
 
 # statics through the kernel's rows: every contact held (w = 0) by impulses in 8-gons

@@ -1,4 +1,5 @@
 # Usage: python tests/probes/pile_class.py FIRST LAST [--boxes N] [--dt DT] [--why]
+#        python tests/probes/pile_class.py SEED 0 --save PATH [--stop T]  (island_solvers.py)
 # (from the repository root, in the venv of the README's test command)
 # Issue 48 (d), "bodies at rest in a pile report zero velocity", as a class: random piles
 # of N boxes (tests/test_pile_rest.py's generator, seeds FIRST..LAST-1; even seeds rk4,
@@ -35,7 +36,12 @@ def main() -> int:
     ap.add_argument("--boxes", type=int, default=20)
     ap.add_argument("--dt", type=float, default=1 / 120)
     ap.add_argument("--why", action="store_true")
+    ap.add_argument("--save", metavar="PATH", help="pile FIRST stopped at --stop, pickled "
+                    "(scene text, state) for island_solvers.py (PILE=PATH)")
+    ap.add_argument("--stop", type=float, default=6.0, help="s, with --save")
     args = ap.parse_args()
+    if args.save:
+        return save(args)
     last = {}
 
     def simulate(src):  # the test's, keeping the run for --why
@@ -54,6 +60,33 @@ def main() -> int:
             if args.why:
                 why(last)
     print(f"not at rest: {moving} of {args.last - args.first}")
+    return 0
+
+
+def save(args) -> int:
+    import pickle
+
+    from vrsim_cli.loop import run
+    from vrsim_cli.model.model import compile_model
+    from vrsim_cli.model.state import make_state
+    from vrsim_cli.scene.spec import parse_scene
+
+    kept = {}
+
+    def simulate(src):  # run to --stop (a frame: 0.1 s apart), keep the state
+        model = compile_model(parse_scene(src))
+        t = [0.0]
+        result = run(model, make_state(model), on_frame=lambda s: t.__setitem__(0, s.t),
+                     should_stop=lambda: t[0] >= args.stop - 1e-9)
+        kept.update(src=src, state=result.state)
+        return model, [result.state] * 5, result.state
+
+    test_pile_rest.simulate = simulate
+    test_pile_rest._pile(args.first, args.boxes, ("rk4", "verlet")[args.first % 2], args.dt,
+                         8.0)
+    with open(args.save, "wb") as f:
+        pickle.dump((kept["src"], kept["state"]), f)
+    print(f"pile {args.first} at t = {kept['state'].t:g} s -> {args.save}")
     return 0
 
 
