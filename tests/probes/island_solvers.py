@@ -102,7 +102,8 @@ for r, i in enumerate(rows):
     vn, v1, v2 = ks.rel3(K, i, U0, W0)
     b[3 * r:3 * r + 3] = (vn - ks._target(K, i, DT), v1 + K[i, ks.K_V0T],
                           v2 + K[i, ks.K_V0T + 1])
-print(f"{os.environ.get('PILE') or len(centres(R_S, LAYERS))} (bodies), mu {MU:.4f}: {m} contacts, {3 * m} rows, "
+print(f"{os.environ.get('PILE') or len(centres(R_S, LAYERS))} (bodies), mu {MU:.4f}: "
+      f"{m} contacts, {3 * m} rows, "
       f"rank {np.linalg.matrix_rank(A)}")
 
 # statics through the kernel's rows: every contact held (w = 0) by impulses in 8-gons
