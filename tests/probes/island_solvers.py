@@ -78,15 +78,16 @@ if os.environ.get("PILE"):  # a pile saved by pile_class.py --save: one step fro
     DT = _model.dt
     MU = float(calls[0][0][0, ks.K_MU])  # every box's and the floor's
     NEED = MU
-bodies = "\n".join(
-    f"  - {{name: s{k}, mass: 1.0, position: {[float(x) for x in p]}, shape: {{type: sphere, "
-    f"radius: {R_S}}}, material: {{friction: {MU!r}, restitution: 0}}}}"
-    for k, p in enumerate(centres(R_S, LAYERS)))
-calls or vrsim_cli.simulate(vrsim_cli.load(
-    f"vrsim: 1\nduration: 1.0\nframe_rate: {1 / DT!r}\ndt: {DT!r}\nintegrator: verlet\n"
-    "gravity: [0, -9.81, 0]\ncollision: {}\nbodies:\n  - {name: ground, type: static, "
-    "shape: {type: plane, normal: [0, 1, 0]}, material: {friction: " + repr(MU)
-    + ", restitution: 0}}\n" + bodies + "\n")).step(1)
+else:  # the pyramid: its first step
+    bodies = "\n".join(
+        f"  - {{name: s{k}, mass: 1.0, position: {[float(x) for x in p]}, shape: {{type: sphere, "
+        f"radius: {R_S}}}, material: {{friction: {MU!r}, restitution: 0}}}}"
+        for k, p in enumerate(centres(R_S, LAYERS)))
+    vrsim_cli.simulate(vrsim_cli.load(
+        f"vrsim: 1\nduration: 1.0\nframe_rate: {1 / DT!r}\ndt: {DT!r}\nintegrator: verlet\n"
+        "gravity: [0, -9.81, 0]\ncollision: {}\nbodies:\n  - {name: ground, type: static, "
+        "shape: {type: plane, normal: [0, 1, 0]}, material: {friction: " + repr(MU)
+        + ", restitution: 0}}\n" + bodies + "\n")).step(1)
 K, U0, W0 = calls[0]
 rows = [i for i in range(K.shape[0]) if int(K[i, ks.K_MODE]) == ks.IMPULSE]
 m, n = len(rows), U0.shape[0]
@@ -206,8 +207,8 @@ for name in [name for name in ("block", "desaxce") if name in ONLY]:
 # C_i = {w : w_n >= mu |w_t|} (the velocities Anitescu's relaxation allows), D_i =
 # 1 / (EPS A_ii): a contact's impulse D_i (Pi(w_i) - w_i) lies in its friction cone, and
 # its velocity misses C_i by EPS A_ii |l_i|. Newton's direction from M + sum J' D (I - dPi)
-# J, a backtracking line search (Armijo). J and M^-1 J' come from the kernel's own
-# functions (rel3 of unit body velocities, apply of unit impulses), M from them.
+# J, an exact line search (bisection on the slope). J and M^-1 J' come from the kernel's
+# own functions (rel3 of unit body velocities, apply of unit impulses), M from them.
 def cone_projection(w, mu):
     """(Pi(w), dPi/dw) for C = {w_n >= mu |w_t|}."""
     s = math.hypot(w[1], w[2])
@@ -245,14 +246,6 @@ if "newton" in ONLY:
     v0 = (np.concatenate([U0, W0], axis=1).ravel() - G @ LAM_WARM)[moving]
     c0 = b - Jm @ v0
     D = 1.0 / (EPS * np.diag(A))
-
-    def cost(v):
-        w = Jm @ v + c0
-        f = 0.5 * (v - v0) @ Mm @ (v - v0)
-        for r in range(m):
-            p, _ = cone_projection(w[3 * r:3 * r + 3], MU)
-            f += 0.5 * D[3 * r] * np.sum((w[3 * r:3 * r + 3] - p) ** 2)
-        return f
 
     def report_newton(label, v, ggl):
         g, _, lam = ggl
@@ -293,9 +286,9 @@ if "newton" in ONLY:
     for outer in range(OUTER):
         for it in range(1, INNER + 1):
             g, H, lam = gradient(v, True)
-            # done: the gradient at GTOL of its own terms' size (momentum and impulses:
-            # their difference cannot be resolved below their round-off), or GTOL0 of
-            # the first round's first gradient (the old rule)
+            # done: the gradient at GTOL of its own terms' size (RULE=terms: momentum
+            # and impulses, whose difference is not resolved below their round-off), or
+            # at GTOL of the first round's first gradient (RULE=first)
             terms = np.abs(Mm @ (v - v0)).max() + np.abs(Jm.T @ lam).max()
             if np.abs(g).max() <= (GTOL * terms if RULE == "terms" else GTOL * g0):
                 break
