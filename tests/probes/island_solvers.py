@@ -30,10 +30,9 @@
 # stopping rule (RULE=terms, GTOL 1e-10 or 1e-12: the pyramid in 15-16 steps to 1.3e-15
 # m/s): so the pile's residual is not the inner rounds' stop; to be examined. The
 # all-held LP is infeasible there (some contacts must open): not the oracle for piles.
-# 2026-12-08: at EPS 1e-6 and 1e-8 the rounds stall at one point (contacts 54, 55, 85,
-# 86: slip 1-2e-8, 1.6e-8 m/s past the normal target), at 1e-10 at another (86: 1.2e-7):
-# the primal is unique, so this is the penalty Hessian's conditioning (~1/EPS), not the
-# answer; docs/benchmarks.md.
+# 2026-12-08: the level is the step's problem, not the solver's: a least-squares solve
+# holding all 77 loaded contacts at their targets leaves 2.0e-8 m/s (contact 54, loaded
+# 0.6-0.7 of the largest, has a 1e-7 m gap: target -6e-6 m/s); docs/benchmarks.md.
 """Five solves of one large island's resting contacts, against statics (issue 48 (d))."""
 import math
 import os
