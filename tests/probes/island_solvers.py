@@ -115,6 +115,19 @@ print(f"{os.environ.get('PILE') or len(centres(R_S, LAYERS))} (bodies), mu {MU:.
       f"{m} contacts, {3 * m} rows, "
       f"rank {np.linalg.matrix_rank(A)}")
 
+# Which part of b no impulses can reach (outside range(A) = range(J): a set of velocity
+# targets no motion of the bodies meets), with the targets as they are, without the
+# normal ones (gap and the mean hold's K_V0N: `_target`), and also without friction's
+# mean-hold slips K_V0T. Pile rk4 202 at 6 s: 9e-2 (the gaps of open contacts, which
+# need not be met), 3.8e-6, 7e-16: K_V0T is the unreachable part (docs/benchmarks.md).
+_u, _s, _ = np.linalg.svd(A)
+_R = _u[:, :int((_s > 1e-12 * _s[0]).sum())]
+_tn = np.zeros(3 * m)
+_tn[0::3] = [ks._target(K, i, DT) for i in rows]
+_tt = np.array([[0.0, K[i, ks.K_V0T], K[i, ks.K_V0T + 1]] for i in rows]).ravel()
+print("b outside range(A), m/s: as is %.1e, normal targets out %.1e, also K_V0T out %.1e"
+      % tuple(np.abs(x - _R @ (_R.T @ x)).max() for x in (b, b + _tn, b + _tn - _tt)))
+
 # statics through the kernel's rows: every contact held (w = 0) by impulses in 8-gons
 S = 8
 P = np.zeros((3 * m, m * S))
