@@ -2561,7 +2561,8 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
     thrown on the ground or an incline, to 1e-13 m, was up to 1e-4 m off a stop; a box
     or a cylinder stopping on its face to 1e-13 of the distance, since stuck is read
     from the end slip: `_slides_to_stop`.)
-    For islands of one moving body, solved to convergence (SMALL_ISLAND_ROWS), where v1
+    For islands of one moving body or one stopping pair, solved to convergence
+    (SMALL_ISLAND_ROWS; a stack sliding to a stop: `tests/test_stack_slides.py`), where v1
     is the rest's fixed point; the re-solve is a copy (K, U, Wv are not changed). One tau
     per island: the mean of its stopping contacts', weighted by their friction limits
     (equal for a body sliding without turning). Positions and orientations only; no
@@ -2578,10 +2579,13 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
     island = np.empty(k, np.int64)
     rows = islands(K, k, inv_m, island)
     n = inv_m.shape[0]
-    # islands of one moving body only: with several, their contacts stop at different
+    # islands of one moving body, or whose stopping contacts are all of one pair: one
+    # switch, placed by one tau (the island's other contacts keep their state, as a box's
+    # stuck on the sliding one). Where several bodies' pairs stop, they stop at different
     # times and one tau misplaces the others (a domino row and an rk4 pile gained energy
     # and did not come to rest with every island taken)
     member = np.full(n, -1, np.int64)  # the island's one moving body, -2: several
+    pair = np.full(n, -1, np.int64)  # its one stopping pair (a * n + b), -2: several
     for i in range(k):
         g = island[i]
         if g < 0:
@@ -2589,13 +2593,17 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
         for body in (int(K[i, K_A]), int(K[i, K_B])):
             if inv_m[body] != 0.0 and member[g] != body:
                 member[g] = body if member[g] == -1 else -2
+        if _slides_to_stop(K, i, v0, dt, U, Wv):
+            key = int(K[i, K_A]) * n + int(K[i, K_B])
+            if pair[g] != key:
+                pair[g] = key if pair[g] == -1 else -2
     live = np.zeros(n, np.bool_)
     e = np.zeros((k, 2))
     stops = np.zeros(k, np.bool_)
     for i in range(k):
         g = island[i]
-        if g >= 0 and member[g] >= 0 and rows[g] <= SMALL_ISLAND_ROWS and \
-                _slides_to_stop(K, i, v0, dt, U, Wv):
+        if g >= 0 and (member[g] >= 0 or pair[g] >= 0) and \
+                rows[g] <= SMALL_ISLAND_ROWS and _slides_to_stop(K, i, v0, dt, U, Wv):
             u = math.sqrt(v0[i, 1] * v0[i, 1] + v0[i, 2] * v0[i, 2])
             e[i, 0], e[i, 1] = v0[i, 1] / u, v0[i, 2] / u
             stops[i] = True
