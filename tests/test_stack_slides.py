@@ -91,3 +91,40 @@ def test_a_stack_sliding_to_a_stop_stops_where_one_box_would():
             misses.append((n, round(v0, 3), round(mu, 3), round(1 / dt), integrator,
                            f"off {off:.1e} m", f"speed {speed:.1e} m/s"))
     assert not misses, misses
+
+
+def test_a_box_pushed_by_a_frictionless_one_stops_where_the_pair_would():
+    """Another island with one stopping pair: a box sliding on the floor (mu) pushed by a
+    box behind it that has no friction anywhere (both 0.1 m cubes, touching, the same
+    start velocity). The two move as one body of mass m1 + m2 under the front box's
+    friction mu m1 g (the push needs no friction; with mu < 1 the front cannot tip, as
+    m2 a h/2 < m1 g w/2), so they stop after d = v0^2 (m1 + m2) / (2 mu m1 g). The
+    pusher's frictionless contacts also end the stop step at zero slip; counted as stops
+    of their own they hid the front box's (measured 6.6e-5 m off at dt 1/60 before
+    `_slides_to_stop` left frictionless contacts out; found by an independent review)."""
+    rng = np.random.default_rng([48, 22])
+    misses = []
+    for _ in range(8):
+        m1, m2 = (float(m) for m in rng.uniform(0.2, 2.0, 2))
+        mu, v0 = float(rng.uniform(0.1, 0.9)), float(rng.uniform(0.1, 1.5))
+        dt = float(rng.choice([1 / 60, 1 / 120, 1 / 240]))
+        integrator = str(rng.choice(["verlet", "rk4"]))
+        src = (f"vrsim: 1\nduration: {v0 * (m1 + m2) / (mu * m1 * G) + 0.5!r}\n"
+               f"frame_rate: 10\ndt: {dt!r}\nintegrator: {integrator}\n"
+               f"gravity: [0, -{G}, 0]\ncollision: {{}}\nbodies:\n"
+               "  - {name: floor, type: static, shape: {type: plane, normal: [0, 1, 0]}, "
+               "material: {friction: 1.0, restitution: 0}}\n"
+               f"  - {{name: front, mass: {m1!r}, position: [0, {SIZE / 2}, 0], "
+               f"velocity: [{v0!r}, 0, 0], shape: {{type: box, size: [{SIZE}, {SIZE}, "
+               f"{SIZE}]}}, material: {{friction: {mu * mu!r}, restitution: 0}}}}\n"
+               f"  - {{name: pusher, mass: {m2!r}, position: [{-SIZE}, {SIZE / 2}, 0], "
+               f"velocity: [{v0!r}, 0, 0], shape: {{type: box, size: [{SIZE}, {SIZE}, "
+               f"{SIZE}]}}, material: {{friction: 0.0, restitution: 0}}}}\n")
+        _, states, _ = simulate(src)
+        d = v0 * v0 * (m1 + m2) / (2 * mu * m1 * G)
+        off = float(np.abs(states[-1].body_pos[1:, 0] - states[0].body_pos[1:, 0] - d).max())
+        speed = float(np.abs(states[-1].body_vel[1:]).max())
+        if off > 1e-9 or speed > 1e-9:
+            misses.append((round(m1, 3), round(m2, 3), round(mu, 3), round(v0, 3),
+                           round(1 / dt), integrator, f"off {off:.1e} m", f"{speed:.1e} m/s"))
+    assert not misses, misses

@@ -2531,8 +2531,12 @@ def _slides_to_stop(K, i, v0, dt, U, Wv):
     one-ramp path (the slip falls from |u0| to 0 either way), so a start slip for which
     that is below the position round-off
     (POS_ROUNDOFF of its arms) is round-off too: its direction is noise (a resting stack's
-    1e-18 m/s slips jumped it 2e-7 m when taken as stops)."""
-    if i >= v0.shape[0] or int(K[i, K_MODE]) != IMPULSE or K[i, K_LN] <= 0.0:
+    1e-18 m/s slips jumped it 2e-7 m when taken as stops). A contact without friction
+    (mu = 0) has no force to switch: its slip may pass zero (a frictionless box pushing
+    one that stops), but that is no stop of its own, and counted as one it hid the
+    other's (`slip_stops` places an island's stops only where one pair stops)."""
+    if i >= v0.shape[0] or int(K[i, K_MODE]) != IMPULSE or K[i, K_LN] <= 0.0 or \
+            K[i, K_MU] <= 0.0:
         return False
     if K[i, K_IN] != 0.0 or K[i, K_IT] != 0.0 or K[i, K_IT + 1] != 0.0 or \
             K[i, K_LK] != 0.0 or K[i, K_V0T] != 0.0 or K[i, K_V0T + 1] != 0.0:
