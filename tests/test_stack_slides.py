@@ -131,6 +131,51 @@ def test_a_box_pushed_by_a_frictionless_one_stops_where_the_pair_would():
     assert not misses, misses
 
 
+def test_a_stack_sliding_to_a_stop_on_an_incline_stops_where_one_box_would():
+    """The class on an incline of angle a (a plane through the origin, the stack turned
+    with it): sliding up at v0 the stack decelerates at g (sin a + mu cos a), sliding
+    down at g (mu cos a - sin a) (mu > tan a), and stops after v0^2 over twice that; it
+    stays (mu > tan a holds it). While it slides, the friction on each box is mu times
+    its normal load in both cases, so the tipping bound is the floor's, mu < w / (2 h_c),
+    and at rest tan a < mu is below it too. (The review of 9057c72 found main 1e-6 ..
+    1e-3 m off here, up and down.)"""
+    rng = np.random.default_rng([48, 24])
+    misses = []
+    for _ in range(8):
+        n = int(rng.integers(2, 4))
+        mu = float(rng.uniform(0.3, 0.9) * (SIZE / 2) / (SIZE * n / 2))
+        a = float(np.arctan(rng.uniform(0.2, 0.8) * mu))
+        v0, up = float(rng.uniform(0.1, 1.2)), bool(rng.integers(0, 2))
+        dt = float(rng.choice([1 / 60, 1 / 120, 1 / 240]))
+        integrator = str(rng.choice(["verlet", "rk4"]))
+        u = np.array([np.cos(a), np.sin(a), 0.0])  # uphill
+        nrm = np.array([-np.sin(a), np.cos(a), 0.0])
+        q = [float(np.cos(a / 2)), 0.0, 0.0, float(np.sin(a / 2))]
+        vel = [float(c) for c in (v0 if up else -v0) * u]
+        lines = [f"  - {{name: slope, type: static, shape: {{type: plane, normal: "
+                 f"{[float(c) for c in nrm]}}}, material: {{friction: {mu!r}, "
+                 "restitution: 0}}"]
+        for i in range(n):
+            lines.append(f"  - {{name: b{i}, mass: 1.0, position: "
+                         f"{[float(c) for c in SIZE * (i + 0.5) * nrm]}, orientation: {q}, "
+                         f"velocity: {vel}, shape: {{type: box, size: [{SIZE}, {SIZE}, "
+                         f"{SIZE}]}}, material: {{friction: {mu if i == 0 else 5.0!r}, "
+                         "restitution: 0}}")
+        decel = G * float(np.sin(a) + mu * np.cos(a) if up else mu * np.cos(a) - np.sin(a))
+        src = (f"vrsim: 1\nduration: {v0 / decel + 0.5!r}\nframe_rate: 10\ndt: {dt!r}\n"
+               f"integrator: {integrator}\ngravity: [0, -{G}, 0]\ncollision: {{}}\n"
+               "bodies:\n" + "\n".join(lines) + "\n")
+        _, states, _ = simulate(src)
+        along = (states[-1].body_pos[1:] - states[0].body_pos[1:]) @ u
+        off = float(np.abs(along - (1 if up else -1) * v0 * v0 / (2 * decel)).max())
+        speed = max(float(np.abs(st.body_vel[1:]).max()
+                          + np.abs(st.body_angvel[1:]).max() * SIZE) for st in states[-3:])
+        if off > 1e-9 or speed > 1e-9:
+            misses.append((n, round(v0, 3), round(mu, 3), round(float(np.degrees(a)), 2), up,
+                           round(1 / dt), integrator, f"off {off:.1e} m", f"{speed:.1e}"))
+    assert not misses, misses
+
+
 @pytest.mark.xfail(strict=True, reason=(
     "measured 2026-12-08 on 0b47f65 (found by an independent review): stacks of 5-6 flat "
     "boxes (60-72 rows, above SMALL_ISLAND_ROWS = 48) stop 2.3e-5 .. 4.2e-3 m off v0^2 / "
