@@ -2590,6 +2590,7 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
     # and did not come to rest with every island taken)
     member = np.full(n, -1, np.int64)  # the island's one moving body, -2: several
     pair = np.full(n, -1, np.int64)  # its one stopping pair (a * n + b), -2: several
+    stopping = np.zeros(k, np.bool_)  # `_slides_to_stop`, once per contact
     for i in range(k):
         g = island[i]
         if g < 0:
@@ -2598,6 +2599,7 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
             if inv_m[body] != 0.0 and member[g] != body:
                 member[g] = body if member[g] == -1 else -2
         if _slides_to_stop(K, i, v0, dt, U, Wv):
+            stopping[i] = True
             key = int(K[i, K_A]) * n + int(K[i, K_B])
             if pair[g] != key:
                 pair[g] = key if pair[g] == -1 else -2
@@ -2606,8 +2608,8 @@ def slip_stops(mf, K, k, v0, dt, inv_m, U, Wv, S1, RS1):
     stops = np.zeros(k, np.bool_)
     for i in range(k):
         g = island[i]
-        if g >= 0 and (member[g] >= 0 or pair[g] >= 0) and \
-                rows[g] <= SMALL_ISLAND_ROWS and _slides_to_stop(K, i, v0, dt, U, Wv):
+        if stopping[i] and (member[g] >= 0 or pair[g] >= 0) and \
+                rows[g] <= SMALL_ISLAND_ROWS:
             u = math.sqrt(v0[i, 1] * v0[i, 1] + v0[i, 2] * v0[i, 2])
             e[i, 0], e[i, 1] = v0[i, 1] / u, v0[i, 2] / u
             stops[i] = True
