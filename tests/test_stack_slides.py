@@ -31,30 +31,40 @@ G = 9.81
 SIZE = 0.1  # m, cube edge
 
 
+def _box(name, mass, position, velocity, friction, size=(SIZE,) * 3, q=(1.0, 0.0, 0.0, 0.0)):
+    """A scene's line for a box, restitution 0."""
+    return (f"  - {{name: {name}, mass: {mass!r}, position: {[float(c) for c in position]}, "
+            f"orientation: {[float(c) for c in q]}, velocity: {[float(c) for c in velocity]}, "
+            f"shape: {{type: box, size: {[float(c) for c in size]}}}, "
+            f"material: {{friction: {friction!r}, restitution: 0}}}}")
+
+
+def _run(boxes, ground_mu, duration, dt, integrator, normal=(0.0, 1.0, 0.0)):
+    """The samples (10 Hz) of the boxes on a static plane through the origin."""
+    src = (f"vrsim: 1\nduration: {duration!r}\nframe_rate: 10\ndt: {dt!r}\n"
+           f"integrator: {integrator}\ngravity: [0, -{G}, 0]\ncollision: {{}}\nbodies:\n"
+           f"  - {{name: ground, type: static, shape: {{type: plane, normal: "
+           f"{[float(c) for c in normal]}}}, material: {{friction: {ground_mu!r}, "
+           "restitution: 0}}\n" + "\n".join(boxes) + "\n")
+    return simulate(src)[1]
+
+
+def _fastest(states):
+    """The fastest point of any box over the last three samples (m/s)."""
+    return max(float(np.abs(st.body_vel[1:]).max() + np.abs(st.body_angvel[1:]).max() * SIZE)
+               for st in states[-3:])
+
+
 def _stack(n, v0, mu, dt, integrator, masses=None, heading=0.0, yaw=0.0):
     """The boxes' end positions along the slide, and the fastest point over the last
     three samples (m/s)."""
     masses = masses or [1.0] * n
     d = (np.cos(heading), 0.0, np.sin(heading))  # the slide's direction in the floor
-    q = [float(np.cos(yaw / 2)), 0.0, float(np.sin(yaw / 2)), 0.0]  # turned about y
-    lines = ["  - {name: floor, type: static, shape: {type: plane, normal: [0, 1, 0]}, "
-             f"material: {{friction: {mu!r}, restitution: 0}}}}"]
-    for i in range(n):
-        vel = [float(v0 * c) for c in d]
-        lines.append(f"  - {{name: b{i}, mass: {masses[i]!r}, "
-                     f"position: [0, {SIZE * (i + 0.5)!r}, 0], orientation: {q}, "
-                     f"velocity: {vel}, shape: {{type: box, size: [{SIZE}, {SIZE}, "
-                     f"{SIZE}]}}, material: {{friction: {mu if i == 0 else 5.0!r}, "
-                     "restitution: 0}}")
-    stop = v0 / (mu * G)
-    src = (f"vrsim: 1\nduration: {stop + 0.5!r}\nframe_rate: 10\ndt: {dt!r}\n"
-           f"integrator: {integrator}\ngravity: [0, -{G}, 0]\ncollision: {{}}\n"
-           "bodies:\n" + "\n".join(lines) + "\n")
-    _, states, _ = simulate(src)
-    end = states[-1]
-    speed = max(float(np.abs(s.body_vel[1:]).max() + np.abs(s.body_angvel[1:]).max() * SIZE)
-                for s in states[-3:])
-    return end.body_pos[1:] @ np.array(d), speed
+    q = (np.cos(yaw / 2), 0.0, np.sin(yaw / 2), 0.0)  # turned about y
+    boxes = [_box(f"b{i}", masses[i], (0.0, SIZE * (i + 0.5), 0.0), [v0 * c for c in d],
+                  mu if i == 0 else 5.0, q=q) for i in range(n)]
+    states = _run(boxes, mu, v0 / (mu * G) + 0.5, dt, integrator)
+    return states[-1].body_pos[1:] @ np.array(d), _fastest(states)
 
 
 def _draws():
@@ -110,18 +120,9 @@ def test_a_box_pushed_by_a_frictionless_one_stops_where_the_pair_would():
         mu, v0 = float(rng.uniform(0.1, 0.9)), float(rng.uniform(0.1, 1.5))
         dt = float(rng.choice([1 / 60, 1 / 120, 1 / 240]))
         integrator = str(rng.choice(["verlet", "rk4"]))
-        src = (f"vrsim: 1\nduration: {v0 * (m1 + m2) / (mu * m1 * G) + 0.5!r}\n"
-               f"frame_rate: 10\ndt: {dt!r}\nintegrator: {integrator}\n"
-               f"gravity: [0, -{G}, 0]\ncollision: {{}}\nbodies:\n"
-               "  - {name: floor, type: static, shape: {type: plane, normal: [0, 1, 0]}, "
-               "material: {friction: 1.0, restitution: 0}}\n"
-               f"  - {{name: front, mass: {m1!r}, position: [0, {SIZE / 2}, 0], "
-               f"velocity: [{v0!r}, 0, 0], shape: {{type: box, size: [{SIZE}, {SIZE}, "
-               f"{SIZE}]}}, material: {{friction: {mu * mu!r}, restitution: 0}}}}\n"
-               f"  - {{name: pusher, mass: {m2!r}, position: [{-SIZE}, {SIZE / 2}, 0], "
-               f"velocity: [{v0!r}, 0, 0], shape: {{type: box, size: [{SIZE}, {SIZE}, "
-               f"{SIZE}]}}, material: {{friction: 0.0, restitution: 0}}}}\n")
-        _, states, _ = simulate(src)
+        states = _run([_box("front", m1, (0.0, SIZE / 2, 0.0), (v0, 0.0, 0.0), mu * mu),
+                       _box("pusher", m2, (-SIZE, SIZE / 2, 0.0), (v0, 0.0, 0.0), 0.0)],
+                      1.0, v0 * (m1 + m2) / (mu * m1 * G) + 0.5, dt, integrator)
         d = v0 * v0 * (m1 + m2) / (2 * mu * m1 * G)
         off = float(np.abs(states[-1].body_pos[1:, 0] - states[0].body_pos[1:, 0] - d).max())
         speed = float(np.abs(states[-1].body_vel[1:]).max())
@@ -150,26 +151,15 @@ def test_a_stack_sliding_to_a_stop_on_an_incline_stops_where_one_box_would():
         integrator = str(rng.choice(["verlet", "rk4"]))
         u = np.array([np.cos(a), np.sin(a), 0.0])  # uphill
         nrm = np.array([-np.sin(a), np.cos(a), 0.0])
-        q = [float(np.cos(a / 2)), 0.0, 0.0, float(np.sin(a / 2))]
-        vel = [float(c) for c in (v0 if up else -v0) * u]
-        lines = [f"  - {{name: slope, type: static, shape: {{type: plane, normal: "
-                 f"{[float(c) for c in nrm]}}}, material: {{friction: {mu!r}, "
-                 "restitution: 0}}"]
-        for i in range(n):
-            lines.append(f"  - {{name: b{i}, mass: 1.0, position: "
-                         f"{[float(c) for c in SIZE * (i + 0.5) * nrm]}, orientation: {q}, "
-                         f"velocity: {vel}, shape: {{type: box, size: [{SIZE}, {SIZE}, "
-                         f"{SIZE}]}}, material: {{friction: {mu if i == 0 else 5.0!r}, "
-                         "restitution: 0}}")
+        q = (np.cos(a / 2), 0.0, 0.0, np.sin(a / 2))
+        vel = (v0 if up else -v0) * u
         decel = G * float(np.sin(a) + mu * np.cos(a) if up else mu * np.cos(a) - np.sin(a))
-        src = (f"vrsim: 1\nduration: {v0 / decel + 0.5!r}\nframe_rate: 10\ndt: {dt!r}\n"
-               f"integrator: {integrator}\ngravity: [0, -{G}, 0]\ncollision: {{}}\n"
-               "bodies:\n" + "\n".join(lines) + "\n")
-        _, states, _ = simulate(src)
+        boxes = [_box(f"b{i}", 1.0, SIZE * (i + 0.5) * nrm, vel, mu if i == 0 else 5.0, q=q)
+                 for i in range(n)]
+        states = _run(boxes, mu, v0 / decel + 0.5, dt, integrator, normal=nrm)
         along = (states[-1].body_pos[1:] - states[0].body_pos[1:]) @ u
         off = float(np.abs(along - (1 if up else -1) * v0 * v0 / (2 * decel)).max())
-        speed = max(float(np.abs(st.body_vel[1:]).max()
-                          + np.abs(st.body_angvel[1:]).max() * SIZE) for st in states[-3:])
+        speed = _fastest(states)
         if off > 1e-9 or speed > 1e-9:
             misses.append((n, round(v0, 3), round(mu, 3), round(float(np.degrees(a)), 2), up,
                            round(1 / dt), integrator, f"off {off:.1e} m", f"{speed:.1e}"))
@@ -197,18 +187,10 @@ def test_a_tall_stack_sliding_to_a_stop_stops_where_one_box_would():
         integrator = str(rng.choice(["verlet", "rk4"]))
         heading, yaw = float(rng.uniform(0, 2 * np.pi)), float(rng.uniform(0, np.pi / 2))
         d = np.array([np.cos(heading), 0.0, np.sin(heading)])
-        q = [float(np.cos(yaw / 2)), 0.0, float(np.sin(yaw / 2)), 0.0]
-        lines = ["  - {name: floor, type: static, shape: {type: plane, normal: [0, 1, 0]}, "
-                 f"material: {{friction: {mu!r}, restitution: 0}}}}"]
-        for i in range(n):
-            lines.append(f"  - {{name: b{i}, mass: 1.0, position: [0, {0.05 * (i + 0.5)!r}, 0], "
-                         f"orientation: {q}, velocity: {[float(v0 * c) for c in d]}, "
-                         "shape: {type: box, size: [0.4, 0.05, 0.4]}, material: {friction: "
-                         f"{mu if i == 0 else 5.0!r}, restitution: 0}}}}")
-        src = (f"vrsim: 1\nduration: {v0 / (mu * G) + 0.5!r}\nframe_rate: 10\ndt: {dt!r}\n"
-               f"integrator: {integrator}\ngravity: [0, -{G}, 0]\ncollision: {{}}\n"
-               "bodies:\n" + "\n".join(lines) + "\n")
-        _, states, _ = simulate(src)
+        q = (np.cos(yaw / 2), 0.0, np.sin(yaw / 2), 0.0)
+        boxes = [_box(f"b{i}", 1.0, (0.0, 0.05 * (i + 0.5), 0.0), v0 * d,
+                      mu if i == 0 else 5.0, size=(0.4, 0.05, 0.4), q=q) for i in range(n)]
+        states = _run(boxes, mu, v0 / (mu * G) + 0.5, dt, integrator)
         off = float(np.abs((states[-1].body_pos[1:] - states[0].body_pos[1:]) @ d
                            - v0 * v0 / (2 * mu * G)).max())
         if off > 1e-9:
